@@ -1,0 +1,5 @@
+import sys
+
+from jaxenvs.cli import main
+
+sys.exit(main())

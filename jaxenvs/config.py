@@ -1,0 +1,148 @@
+"""Typed, frozen configs: overrides, validation and safe YAML loading.
+
+Every task and agent has a frozen dataclass config. ``apply_overrides`` is the one
+place where user input (keyword overrides, YAML sections, command-line flags) meets a
+config: unknown keys, wrong types and impossible values raise :class:`ConfigError`
+naming the key and where it came from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+C = TypeVar("C")
+
+
+class ConfigError(ValueError):
+    """A config value is unknown, of the wrong type or impossible."""
+
+
+def _coerce(name: str, value: Any, hint: Any, source: str) -> Any:
+    """Check ``value`` against the type ``hint`` and convert lists to tuples."""
+    origin = typing.get_origin(hint)
+    if origin is typing.Union or origin is types.UnionType:
+        errors = []
+        for arg in typing.get_args(hint):
+            if arg is type(None):
+                if value is None:
+                    return None
+                continue
+            try:
+                return _coerce(name, value, arg, source)
+            except ConfigError as err:
+                errors.append(str(err))
+        raise ConfigError(f"{source}: key {name!r} expects {hint}, got {value!r}")
+    if origin is typing.Literal:
+        if value not in typing.get_args(hint):
+            raise ConfigError(
+                f"{source}: key {name!r} must be one of {typing.get_args(hint)}, got {value!r}"
+            )
+        return value
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{source}: key {name!r} expects a list, got {value!r}")
+        args = typing.get_args(hint)
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(name, v, args[0], source) for v in value)
+        if len(args) != len(value):
+            raise ConfigError(
+                f"{source}: key {name!r} expects {len(args)} values, got {len(value)}"
+            )
+        return tuple(_coerce(name, v, a, source) for v, a in zip(value, args, strict=True))
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{source}: key {name!r} expects true/false, got {value!r}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{source}: key {name!r} expects an integer, got {value!r}")
+        return value
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{source}: key {name!r} expects a number, got {value!r}")
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{source}: key {name!r} expects a string, got {value!r}")
+        return value
+    return value
+
+
+def apply_overrides(config: C, overrides: Mapping[str, Any], source: str) -> C:
+    """Return ``config`` with ``overrides`` applied, validated and type-checked.
+
+    Args:
+      config: a frozen dataclass instance.
+      overrides: field name -> new value.
+      source: where the overrides came from (a file path, "command line", ...), used in
+        error messages.
+
+    Raises:
+      ConfigError: for an unknown key (the message lists the valid ones), a value of the
+        wrong type, or a value the config's ``validate`` rejects.
+    """
+    if not dataclasses.is_dataclass(config) or isinstance(config, type):
+        raise TypeError(f"expected a dataclass instance, got {type(config)!r}")
+    fields = {f.name: f for f in dataclasses.fields(config)}
+    hints = typing.get_type_hints(type(config))
+    unknown = sorted(set(overrides) - set(fields))
+    if unknown:
+        raise ConfigError(
+            f"{source}: unknown key(s) {', '.join(map(repr, unknown))} for "
+            f"{type(config).__name__}; valid keys: {', '.join(sorted(fields))}"
+        )
+    coerced = {k: _coerce(k, v, hints[k], source) for k, v in overrides.items()}
+    new = dataclasses.replace(config, **coerced)  # type: ignore[type-var]
+    validate = getattr(new, "validate", None)
+    if validate is not None:
+        try:
+            validate()
+        except ConfigError as err:
+            raise ConfigError(f"{source}: {err}") from None
+    return new
+
+
+def require(condition: bool, key: str, message: str) -> None:
+    """Raise :class:`ConfigError` naming ``key`` unless ``condition`` holds."""
+    if not condition:
+        raise ConfigError(f"key {key!r} {message}")
+
+
+def config_to_dict(config: Any) -> dict[str, Any]:
+    """A YAML-friendly dict of a dataclass config (tuples become lists)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            value = config_to_dict(value)
+        elif isinstance(value, tuple):
+            value = list(value)
+        out[f.name] = value
+    return out
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """Load a YAML mapping with the safe loader; errors name the file.
+
+    Python-object tags (``!!python/object``) are rejected by the safe loader and never
+    executed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file not found: {path}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: not valid YAML ({err})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping at the top level")
+    return data

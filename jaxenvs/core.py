@@ -1,0 +1,399 @@
+"""Core types: the env state, the task base class, and the batched auto-resetting env.
+
+A task is a pair of pure functions ``reset(key, params) -> State`` and
+``step(state, action, params) -> State``. Subclasses of :class:`Env` supply four hooks
+(the task layer) over a :class:`jaxenvs.sim.Sim` (the sim and robot layers):
+
+* ``_init(key, params) -> (data, extras)``: the initial-state distribution;
+* ``_act(data, extras, action, params) -> (data, extras)``: map a (sanitised) action
+  to controls and advance the physics one control step;
+* ``_observe(data, extras, params) -> obs``;
+* ``_reward(prev_data, data, action, extras, params) -> (reward, terminated, metrics)``.
+
+:class:`Env` adds what every task shares: action validation and sanitisation, episode
+counters, truncation at the episode length, divergence detection, and a fixed ``info``.
+
+``info`` keys (all arrays, present after every reset and step):
+
+=================  =====================================================================
+``episode_return``  return accumulated so far in the current episode
+``episode_length``  steps taken so far in the current episode
+``final_obs``       the observation the last transition really ended in; equal to
+                    ``obs`` except right after an auto-reset, where it keeps the finished
+                    episode's last observation (use it to bootstrap on truncation)
+``final_return``    return of the episode the last transition belongs to
+``final_length``    length of the episode the last transition belongs to
+``nan_actions``     1 if the last action held a NaN/inf (it was replaced by zeros)
+``diverged``        True if the physics state became non-finite or passed the divergence
+                    bound; such an env is terminated (and reset when batched)
+(task metrics)      fixed per task, e.g. ``distance`` for the reacher
+=================  =====================================================================
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from typing import Any, Generic, TypeVar
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from jaxenvs.config import require
+from jaxenvs.sim import Sim
+
+PyTree = Any
+Params = Any
+
+STANDARD_INFO_KEYS = (
+    "episode_return",
+    "episode_length",
+    "final_obs",
+    "final_return",
+    "final_length",
+    "nan_actions",
+    "diverged",
+)
+
+
+class State(struct.PyTreeNode):
+    """The full state of one env (or of a batch, with a leading axis on every leaf).
+
+    Attributes:
+      data: the MJX physics state.
+      obs: observation, float32 of shape ``(observation_size,)``.
+      reward: float32 scalar reward of the last transition (0 after reset).
+      terminated: the last transition reached a terminal state (no bootstrap).
+      truncated: the episode hit its time limit (bootstrap from ``info["final_obs"]``).
+      info: fixed dict of arrays, see the module docstring.
+      extras: task-specific state (targets, commanded velocities, ...).
+      time: int32 steps taken in the current episode.
+      key: the PRNG key that drives this env's future randomness.
+      params: per-env params of a randomised batched env, else ``None``.
+    """
+
+    data: mjx.Data
+    obs: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    truncated: jax.Array
+    info: dict[str, jax.Array]
+    extras: PyTree
+    time: jax.Array
+    key: jax.Array
+    params: Params = None
+
+    @property
+    def done(self) -> jax.Array:
+        """``terminated | truncated``."""
+        return jnp.logical_or(self.terminated, self.truncated)
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskConfig:
+    """Fields every task config has. Subclasses add their own.
+
+    Attributes:
+      episode_length: steps before truncation.
+      divergence_bound: an env whose |qpos| or |qvel| exceeds this (or is non-finite) is
+        terminated with ``info["diverged"]``.
+    """
+
+    episode_length: int = 1000
+    divergence_bound: float = 1e4
+
+    def validate(self) -> None:
+        require(self.episode_length > 0, "episode_length", "must be positive")
+        for name in ("timestep", "substeps"):
+            if hasattr(self, name):
+                require(getattr(self, name) > 0, name, "must be positive")
+        require(self.divergence_bound > 0, "divergence_bound", "must be positive")
+
+
+ConfigT = TypeVar("ConfigT", bound=TaskConfig)
+
+
+class Env(abc.ABC, Generic[ConfigT]):
+    """Base class of every jaxenvs task. Holds no mutable state after construction."""
+
+    #: tuple of task-specific info keys, fixed per task.
+    metric_keys: tuple[str, ...] = ()
+
+    def __init__(self, config: ConfigT, sim: Sim) -> None:
+        self.config = config
+        self.sim = sim
+
+    # ----------------------------------------------------------------- description
+    @property
+    @abc.abstractmethod
+    def observation_size(self) -> int: ...
+
+    @property
+    @abc.abstractmethod
+    def action_size(self) -> int:
+        """Number of actuators, or number of actions for discrete tasks."""
+
+    @property
+    def discrete(self) -> bool:
+        """True if actions are integers in ``[0, action_size)``."""
+        return False
+
+    @property
+    def observation_space(self) -> gymnasium.spaces.Box:
+        return gymnasium.spaces.Box(-np.inf, np.inf, (self.observation_size,), np.float32)
+
+    @property
+    def action_space(self) -> gymnasium.spaces.Space:
+        if self.discrete:
+            return gymnasium.spaces.Discrete(self.action_size)
+        return gymnasium.spaces.Box(-1.0, 1.0, (self.action_size,), np.float32)
+
+    @property
+    def action_shape(self) -> tuple[int, ...]:
+        return () if self.discrete else (self.action_size,)
+
+    @property
+    def episode_length(self) -> int:
+        return self.config.episode_length
+
+    @property
+    def control_dt(self) -> float:
+        return self.sim.control_dt
+
+    @property
+    @abc.abstractmethod
+    def default_params(self) -> Params: ...
+
+    def sample_params(self, key: jax.Array) -> Params:
+        """Draw randomised params (domain randomisation); default: no randomisation."""
+        del key
+        return self.default_params
+
+    # ----------------------------------------------------------------- task hooks
+    @abc.abstractmethod
+    def _init(self, key: jax.Array, params: Params) -> tuple[mjx.Data, PyTree]: ...
+
+    @abc.abstractmethod
+    def _act(
+        self, data: mjx.Data, extras: PyTree, action: jax.Array, params: Params
+    ) -> tuple[mjx.Data, PyTree]: ...
+
+    @abc.abstractmethod
+    def _observe(self, data: mjx.Data, extras: PyTree, params: Params) -> jax.Array: ...
+
+    @abc.abstractmethod
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: PyTree,
+        params: Params,
+    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]: ...
+
+    def _zero_metrics(self) -> dict[str, jax.Array]:
+        return {k: jnp.zeros((), jnp.float32) for k in self.metric_keys}
+
+    # ----------------------------------------------------------------- public API
+    def reset(self, key: jax.Array, params: Params = None) -> State:
+        """Start an episode from the task's initial-state distribution."""
+        params = self.default_params if params is None else params
+        key, init_key = jax.random.split(key)
+        data, extras = self._init(init_key, params)
+        obs = self._observe(data, extras, params).astype(jnp.float32)
+        zero = jnp.zeros((), jnp.float32)
+        info = {
+            "episode_return": zero,
+            "episode_length": jnp.zeros((), jnp.int32),
+            "final_obs": obs,
+            "final_return": zero,
+            "final_length": jnp.zeros((), jnp.int32),
+            "nan_actions": jnp.zeros((), jnp.int32),
+            "diverged": jnp.zeros((), bool),
+            **self._zero_metrics(),
+        }
+        return State(
+            data=data,
+            obs=obs,
+            reward=zero,
+            terminated=jnp.zeros((), bool),
+            truncated=jnp.zeros((), bool),
+            info=info,
+            extras=extras,
+            time=jnp.zeros((), jnp.int32),
+            key=key,
+        )
+
+    def step(self, state: State, action: jax.Array, params: Params = None) -> State:
+        """Advance one control step.
+
+        ``params=None`` uses the params the batched env stored in ``state.params``, else
+        ``default_params``. The action is validated at trace time (shape and dtype) and
+        sanitised on device: NaN/inf entries become 0 (counted in ``info["nan_actions"]``),
+        continuous actions are clipped to [-1, 1], discrete ones into range.
+        """
+        if params is None:
+            params = self.default_params if state.params is None else state.params
+        action, nan_count = self.sanitize_action(action)
+        key, _ = jax.random.split(state.key)
+        data, extras = self._act(state.data, state.extras, action, params)
+        reward, terminated, metrics = self._reward(state.data, data, action, extras, params)
+        obs = self._observe(data, extras, params).astype(jnp.float32)
+
+        bound = self.config.divergence_bound
+        phys = jnp.concatenate([data.qpos, data.qvel])
+        diverged = ~jnp.all(jnp.isfinite(phys)) | jnp.any(jnp.abs(phys) > bound)
+        diverged = diverged | ~jnp.all(jnp.isfinite(obs)) | ~jnp.isfinite(reward)
+        obs = jnp.where(diverged, jnp.nan_to_num(obs, posinf=bound, neginf=-bound), obs)
+        obs = jnp.clip(obs, -bound, bound)
+        reward = jnp.where(diverged, 0.0, reward).astype(jnp.float32)
+        terminated = jnp.logical_or(terminated, diverged)
+
+        time = state.time + 1
+        truncated = jnp.logical_and(time >= self.config.episode_length, ~terminated)
+        ep_return = state.info["episode_return"] + reward
+        info = {
+            "episode_return": ep_return,
+            "episode_length": time,
+            "final_obs": obs,
+            "final_return": ep_return,
+            "final_length": time,
+            "nan_actions": nan_count,
+            "diverged": diverged,
+            **{k: jnp.asarray(v, jnp.float32) for k, v in metrics.items()},
+        }
+        return state.replace(
+            data=data,
+            obs=obs,
+            reward=reward,
+            terminated=terminated,
+            truncated=truncated,
+            info=info,
+            extras=extras,
+            time=time,
+            key=key,
+        )
+
+    def sanitize_action(self, action: Any) -> tuple[jax.Array, jax.Array]:
+        """Validate shape/dtype (trace time) and clean values (device)."""
+        action = jnp.asarray(action)
+        if action.shape != self.action_shape:
+            raise ValueError(
+                f"{type(self).__name__}: expected an action of shape {self.action_shape} "
+                f"({self.action_space}), got shape {action.shape}"
+            )
+        if self.discrete:
+            if not jnp.issubdtype(action.dtype, jnp.integer):
+                raise TypeError(
+                    f"{type(self).__name__}: expected an integer action for "
+                    f"{self.action_space}, got dtype {action.dtype}"
+                )
+            return jnp.clip(action, 0, self.action_size - 1).astype(jnp.int32), jnp.zeros(
+                (), jnp.int32
+            )
+        if not jnp.issubdtype(action.dtype, jnp.floating):
+            raise TypeError(
+                f"{type(self).__name__}: expected a floating-point action for "
+                f"{self.action_space}, got dtype {action.dtype}"
+            )
+        action = action.astype(jnp.float32)
+        bad = ~jnp.isfinite(action)
+        action = jnp.clip(jnp.where(bad, 0.0, action), -1.0, 1.0)
+        return action, jnp.any(bad).astype(jnp.int32)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.config})"
+
+
+class BatchedEnv:
+    """``num_envs`` copies of an :class:`Env` stepped by one vmapped function.
+
+    Finished envs (terminated or truncated) come back already reset to a FRESH random
+    initial state drawn with that env's own key; the finished episode's last observation,
+    return and length stay in ``info["final_obs"]``, ``info["final_return"]`` and
+    ``info["final_length"]``, and ``reward``/``terminated``/``truncated`` still describe
+    the transition that ended it. With ``randomize=True`` each env draws its own params
+    from ``env.sample_params`` at every reset (domain randomisation).
+    """
+
+    def __init__(self, env: Env, num_envs: int, randomize: bool = False) -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.env = env
+        self.num_envs = int(num_envs)
+        self.randomize = bool(randomize)
+
+    def __getattr__(self, name: str) -> Any:
+        raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")
+
+    observation_size = property(lambda self: self.env.observation_size)
+    action_size = property(lambda self: self.env.action_size)
+    observation_space = property(lambda self: self.env.observation_space)
+    action_space = property(lambda self: self.env.action_space)
+    discrete = property(lambda self: self.env.discrete)
+    default_params = property(lambda self: self.env.default_params)
+    episode_length = property(lambda self: self.env.episode_length)
+    config = property(lambda self: self.env.config)
+
+    def _reset_batch(self, keys: jax.Array, params: Params) -> State:
+        if self.randomize and params is None:
+            keys, pkeys = jnp.moveaxis(jax.vmap(jax.random.split)(keys), 1, 0)
+            params = jax.vmap(self.env.sample_params)(pkeys)
+            state = jax.vmap(self.env.reset)(keys, params)
+            return state.replace(params=params)
+        return jax.vmap(self.env.reset, in_axes=(0, None))(keys, params)
+
+    def reset(self, key: jax.Array, params: Params = None) -> State:
+        """Reset all envs; returns a State with a leading ``num_envs`` axis."""
+        keys = jax.random.split(key, self.num_envs)
+        return self._reset_batch(keys, params)
+
+    def step(self, state: State, action: jax.Array, params: Params = None) -> State:
+        """Step every env, then reset the finished ones (fresh random starts)."""
+        action = jnp.asarray(action)
+        expected = (self.num_envs, *self.env.action_shape)
+        if action.shape != expected:
+            raise ValueError(
+                f"batched {type(self.env).__name__}: expected actions of shape {expected}, "
+                f"got {action.shape}"
+            )
+        if state.params is not None:
+            nxt = jax.vmap(self.env.step)(state, action, state.params)
+        else:
+            nxt = jax.vmap(self.env.step, in_axes=(0, 0, None))(state, action, params)
+        done = nxt.done
+
+        def reset_done(nxt: State) -> State:
+            fresh = self._reset_batch(nxt.key, params)
+
+            def pick(new: jax.Array, old: jax.Array) -> jax.Array:
+                mask = done.reshape(done.shape + (1,) * (old.ndim - 1))
+                return jnp.where(mask, new, old)
+
+            merged = jax.tree.map(
+                pick,
+                (fresh.data, fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
+                (nxt.data, nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
+            )
+            data, obs, extras, time, key, new_params = merged
+            info = dict(nxt.info)
+            info["episode_return"] = jnp.where(done, 0.0, nxt.info["episode_return"])
+            info["episode_length"] = jnp.where(done, 0, nxt.info["episode_length"])
+            return nxt.replace(
+                data=data,
+                obs=obs,
+                extras=extras,
+                time=time,
+                key=key,
+                params=new_params,
+                info=info,
+            )
+
+        return jax.lax.cond(jnp.any(done), reset_done, lambda s: s, nxt)
+
+    def __repr__(self) -> str:
+        return f"BatchedEnv({self.env!r}, num_envs={self.num_envs})"

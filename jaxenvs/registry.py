@@ -1,0 +1,162 @@
+"""The id table: every registered env id -> (task class, default config, metadata).
+
+An explicit table, filled in one place (``_builtin``) for our own tasks and by
+:func:`register` for users' tasks; nothing registers itself as an import side effect
+elsewhere.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+from jaxenvs.config import ConfigError, apply_overrides
+from jaxenvs.core import BatchedEnv, Env, TaskConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSpec:
+    """One registered id.
+
+    Attributes:
+      id: the env id, e.g. ``"CartPole-v0"``.
+      factory: ``factory(config) -> Env``; usually the task class.
+      config: the default config of this id (a frozen dataclass).
+      description: one line for ``jaxenvs list``.
+      reward_threshold: return at which the task counts as solved, if meaningful.
+    """
+
+    id: str
+    factory: Callable[[Any], Env]
+    config: TaskConfig
+    description: str = ""
+    reward_threshold: float | None = None
+
+
+_REGISTRY: dict[str, EnvSpec] = {}
+
+
+def register(
+    env_id: str,
+    factory: Callable[[Any], Env],
+    config: TaskConfig,
+    description: str = "",
+    reward_threshold: float | None = None,
+    *,
+    overwrite: bool = False,
+) -> EnvSpec:
+    """Register a task under ``env_id`` so that :func:`make` (and the Gymnasium facade,
+    the agents and the command line) can build it.
+
+    Args:
+      env_id: the id, ``Name-vN``.
+      factory: called with the (overridden) config; returns an :class:`Env`.
+      config: the default config instance.
+      description: one line for ``jaxenvs list``.
+      reward_threshold: the "solved" return, if meaningful.
+      overwrite: replace an existing registration instead of raising.
+    """
+    if env_id in _REGISTRY and not overwrite:
+        raise ValueError(f"env id {env_id!r} is already registered (pass overwrite=True)")
+    spec = EnvSpec(env_id, factory, config, description, reward_threshold)
+    _REGISTRY[env_id] = spec
+    _notify_gymnasium(spec)
+    return spec
+
+
+def _notify_gymnasium(spec: EnvSpec) -> None:
+    """Register with Gymnasium too when the facade is available."""
+    try:
+        gym_compat = importlib.import_module("jaxenvs.compat.gymnasium")
+    except ModuleNotFoundError as err:  # facade not built yet
+        if err.name != "jaxenvs.compat.gymnasium":
+            raise
+        return
+    register_spec = getattr(gym_compat, "register_spec", None)
+    if register_spec is not None:
+        register_spec(spec)
+
+
+def list_envs() -> list[str]:
+    """All registered env ids, in registration order."""
+    return list(_REGISTRY)
+
+
+def spec(env_id: str) -> EnvSpec:
+    """The :class:`EnvSpec` of ``env_id``; unknown ids raise with the list of valid ones."""
+    try:
+        return _REGISTRY[env_id]
+    except KeyError:
+        raise ValueError(
+            f"unknown env id {env_id!r}; registered ids: {', '.join(_REGISTRY)}"
+        ) from None
+
+
+def make_config(
+    env_id: str, overrides: dict[str, Any] | None = None, source: str = "make() overrides"
+) -> TaskConfig:
+    """The default config of ``env_id`` with ``overrides`` applied and validated."""
+    return apply_overrides(spec(env_id).config, overrides or {}, source)
+
+
+def make(
+    env_id: str,
+    num_envs: int | None = None,
+    randomize: bool = False,
+    **overrides: Any,
+) -> Env | BatchedEnv:
+    """Build the env registered as ``env_id``.
+
+    Args:
+      env_id: a registered id (see :func:`list_envs`).
+      num_envs: if given, a :class:`BatchedEnv` of that many auto-resetting envs.
+      randomize: with ``num_envs``, draw per-env params at every reset.
+      **overrides: any field of the task's config (``episode_length=500``, ...); an
+        unknown key raises :class:`ConfigError` listing the valid ones.
+    """
+    config = make_config(env_id, overrides)
+    env = spec(env_id).factory(config)
+    if num_envs is None:
+        if randomize:
+            raise ConfigError("randomize=True needs num_envs (a batched env)")
+        return env
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        raise ConfigError(f"num_envs must be a positive integer, got {num_envs!r}")
+    return BatchedEnv(env, num_envs, randomize=randomize)
+
+
+def _builtin() -> None:
+    from jaxenvs.tasks import cartpole
+
+    register(
+        "CartPole-v0",
+        cartpole.CartPole,
+        cartpole.CartPoleConfig(),
+        "classic balance: +1 per step, ends past 12 deg or 2.4 m, 500 steps",
+        reward_threshold=475.0,
+    )
+    register(
+        "CartpoleStayUp-v0",
+        cartpole.CartpoleStayUp,
+        cartpole.StayUpConfig(),
+        "ROS-course stay-up: velocity-increment commands, +1 per step",
+    )
+    register(
+        "CartpoleBalance-v0",
+        cartpole.CartpoleBalance,
+        cartpole.BalanceConfig(),
+        "dense balance reward in [0, 1], continuous force, 1000 steps",
+        reward_threshold=950.0,
+    )
+    register(
+        "CartpoleSwingup-v0",
+        cartpole.CartpoleBalance,
+        cartpole.BalanceConfig(swing_up=True),
+        "swing up from hanging, dense reward, continuous force, 1000 steps",
+        reward_threshold=800.0,
+    )
+
+
+_builtin()

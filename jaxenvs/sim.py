@@ -1,0 +1,107 @@
+"""The sim layer: the MJX world a robot lives in.
+
+A :class:`Sim` owns one compiled MuJoCo model (host ``mujoco.MjModel`` for rendering and
+parity checks, device ``mjx.Model`` for stepping), the physics timestep and the number
+of substeps per control step. Everything it does on device is a pure function of
+``(model, data, ...)``; randomisable physical quantities enter through
+:meth:`Sim.model_with`, which swaps model fields for values carried in a params pytree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+
+Controller = Callable[[mjx.Data], jax.Array]
+
+
+class Sim:
+    """One MJX world: model, timestep, substeps.
+
+    Args:
+      xml: path of the MJCF file.
+      timestep: physics timestep in seconds (overrides the MJCF's).
+      substeps: physics steps per control step.
+      edit: optional function applied to the host ``MjModel`` before it is put on
+        device (e.g. to change an actuator's gain for one task).
+    """
+
+    def __init__(
+        self,
+        xml: str | Path,
+        timestep: float,
+        substeps: int,
+        edit: Callable[[mujoco.MjModel], None] | None = None,
+    ) -> None:
+        if timestep <= 0:
+            raise ValueError(f"timestep must be positive, got {timestep}")
+        if substeps < 1:
+            raise ValueError(f"substeps must be >= 1, got {substeps}")
+        self.xml = Path(xml)
+        self.mj_model = mujoco.MjModel.from_xml_path(str(self.xml))
+        self.mj_model.opt.timestep = timestep
+        if edit is not None:
+            edit(self.mj_model)
+        self.mx = mjx.put_model(self.mj_model)
+        self.substeps = int(substeps)
+        self.timestep = float(timestep)
+        self._data0 = mjx.make_data(self.mx)
+
+    @property
+    def control_dt(self) -> float:
+        """Seconds of simulated time per control step."""
+        return self.timestep * self.substeps
+
+    def model_with(self, fields: Mapping[str, jax.Array]) -> mjx.Model:
+        """The device model with top-level fields replaced (e.g. ``body_mass``)."""
+        if not fields:
+            return self.mx
+        return self.mx.replace(**fields)
+
+    def default_fields(self, names: tuple[str, ...]) -> dict[str, jax.Array]:
+        """Current values of model fields, for building a task's default params."""
+        return {name: jnp.asarray(getattr(self.mx, name)) for name in names}
+
+    def init_data(self, qpos: jax.Array, qvel: jax.Array, **fields: jax.Array) -> mjx.Data:
+        """A fresh ``mjx.Data`` with ``qpos``/``qvel`` (and e.g. ``mocap_pos``) set.
+
+        Kinematics are not recomputed here; call :func:`forward` when the observation
+        needs positions derived from ``qpos`` before the first step.
+        """
+        return self._data0.replace(qpos=qpos, qvel=qvel, **fields)
+
+    def step(self, model: mjx.Model, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
+        """Hold ``ctrl`` for one control step (``substeps`` MJX physics steps)."""
+        data = data.replace(ctrl=jnp.asarray(ctrl, data.ctrl.dtype))
+        if self.substeps == 1:
+            return mjx.step(model, data)
+
+        def body(d: mjx.Data, _: None) -> tuple[mjx.Data, None]:
+            return mjx.step(model, d), None
+
+        data, _ = jax.lax.scan(body, data, None, length=self.substeps)
+        return data
+
+    def step_controlled(self, model: mjx.Model, data: mjx.Data, controller: Controller) -> mjx.Data:
+        """One control step where ``controller(data) -> ctrl`` runs before every substep.
+
+        This is how a robot-level low-level controller (e.g. a velocity servo that
+        outputs motor commands) runs at the physics rate under a slower policy.
+        """
+
+        def body(d: mjx.Data, _: None) -> tuple[mjx.Data, None]:
+            ctrl = jnp.asarray(controller(d), d.ctrl.dtype)
+            return mjx.step(model, d.replace(ctrl=ctrl)), None
+
+        data, _ = jax.lax.scan(body, data, None, length=self.substeps)
+        return data
+
+
+def forward(model: mjx.Model, data: mjx.Data) -> mjx.Data:
+    """Recompute derived quantities (positions, velocities) from ``qpos``/``qvel``."""
+    return mjx.forward(model, data)
