@@ -1,0 +1,665 @@
+"""The training runner behind ``jaxenvs train`` / ``eval`` / ``compare``; algorithm-agnostic.
+
+An algorithm is a module in :data:`ALGORITHMS` exposing a frozen config dataclass (with
+at least ``num_envs`` and ``total_steps`` fields, which ``--num-envs`` / ``--total-steps``
+override) and ``make_trainer(env, config) -> Trainer`` (see :mod:`jaxenvs.agents.base`).
+
+A config file is YAML with separate sections, all optional::
+
+    algo: qlearning            # qlearning | sarsa | ppo
+    env:   {id: CartPole-v0, episode_length: 500}   # id + task config overrides
+    agent: {alpha: 0.1, ...}   # the algorithm's config fields
+    train: {seed: 0, num_seeds: 1, ...}              # RunConfig fields
+
+A run directory holds ``config.yaml`` (fully resolved: every field of every section),
+``progress.csv`` (one row per chunk and seed), ``checkpoint.npz`` (written atomically
+after every chunk), ``summary.json``, ``learning_curve.png`` and, when rendering works,
+``video.mp4``. The run itself: ``vmap(init)`` over ``num_seeds`` keys, then a Python loop
+over chunks of one jitted ``vmap(chunk)``; a chunk is a pure function of the runner state,
+so resuming from the checkpoint after chunk ``i`` gives the same final state as a run
+that never stopped.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import importlib
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import yaml
+
+from jaxenvs import registry
+from jaxenvs.agents import checkpoint
+from jaxenvs.agents.base import CHUNK_METRICS, Trainer
+from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
+from jaxenvs.core import Env
+
+PyTree = Any
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgoEntry:
+    """Where an algorithm lives: module path and the name of its config class."""
+
+    module: str
+    config_class: str
+    make_trainer: str = "make_trainer"
+
+
+#: ``--algo`` name -> module exposing its config class and ``make_trainer``.
+ALGORITHMS: dict[str, AlgoEntry] = {
+    "qlearning": AlgoEntry("jaxenvs.agents.tabular", "QLearningConfig"),
+    "sarsa": AlgoEntry("jaxenvs.agents.tabular", "SarsaConfig"),
+    "ppo": AlgoEntry("jaxenvs.agents.ppo", "PPOConfig"),
+}
+
+SECTIONS = ("algo", "env", "agent", "train")
+CONFIG_FILE, PROGRESS_FILE, SUMMARY_FILE = "config.yaml", "progress.csv", "summary.json"
+CHECKPOINT_FILE, CURVE_FILE, VIDEO_FILE = "checkpoint.npz", "learning_curve.png", "video.mp4"
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig:
+    """The ``train:`` section: how the runner drives a trainer.
+
+    Attributes:
+      seed: the base seed; seed ``k`` of a multi-seed run uses ``fold_in(key(seed), k)``.
+      num_seeds: independent trainings vmapped together.
+      eval_episodes: greedy-policy episodes per seed for the final evaluation.
+      eval_every: also evaluate every this many chunks (0: only at the end), logged as
+        ``eval_return`` in progress.csv (for time-to-threshold measurements).
+      video: render ``video.mp4`` of the greedy policy at the end (when rendering works).
+    """
+
+    seed: int = 0
+    num_seeds: int = 1
+    eval_episodes: int = 20
+    eval_every: int = 0
+    video: bool = True
+
+    def validate(self) -> None:
+        require(self.seed >= 0, "seed", "must be >= 0")
+        require(self.num_seeds >= 1, "num_seeds", "must be >= 1")
+        require(self.eval_episodes >= 1, "eval_episodes", "must be >= 1")
+        require(self.eval_every >= 0, "eval_every", "must be >= 0")
+
+
+@dataclasses.dataclass(frozen=True)
+class ResolvedConfig:
+    """Everything a run needs, validated: env id + task config, algorithm, run settings."""
+
+    env_id: str
+    env: Any  # the task config dataclass
+    algo: str
+    agent: Any  # the algorithm config dataclass
+    train: RunConfig
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "algo": self.algo,
+            "env": {"id": self.env_id, **config_to_dict(self.env)},
+            "agent": config_to_dict(self.agent),
+            "train": config_to_dict(self.train),
+        }
+
+
+# ------------------------------------------------------------------ algorithms & configs
+def algorithm(name: str) -> tuple[type, Callable[[Env, Any], Trainer]]:
+    """``(config class, make_trainer)`` of ``--algo name``; clear errors when missing."""
+    if name not in ALGORITHMS:
+        raise ConfigError(f"unknown algorithm {name!r}; choose from {', '.join(ALGORITHMS)}")
+    entry = ALGORITHMS[name]
+    try:
+        module = importlib.import_module(entry.module)
+    except ModuleNotFoundError as err:
+        if err.name != entry.module:
+            raise
+        raise ConfigError(
+            f"algorithm {name!r} is not available yet in this version ({entry.module} is missing)"
+        ) from None
+    config_cls = getattr(module, entry.config_class, None)
+    make = getattr(module, entry.make_trainer, None)
+    if config_cls is None or make is None:
+        raise ConfigError(
+            f"algorithm {name!r} is not available yet: {entry.module} lacks "
+            f"{entry.config_class} or {entry.make_trainer}"
+        )
+    return config_cls, make
+
+
+def _section(data: Mapping[str, Any], name: str, source: str) -> dict[str, Any]:
+    value = data.get(name) or {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{source}: section {name!r} must be a mapping, got {value!r}")
+    return dict(value)
+
+
+def resolve_config(
+    env_id: str | None,
+    algo: str | None,
+    config_file: str | Path | None = None,
+    agent_overrides: Mapping[str, Any] | None = None,
+    train_overrides: Mapping[str, Any] | None = None,
+    source: str = "command line",
+) -> ResolvedConfig:
+    """Defaults <- config file <- command-line values (``None`` values are ignored).
+
+    Errors (unknown section or key, wrong type, impossible value) name the key and the
+    file (or ``source``) they came from.
+    """
+    data: dict[str, Any] = {}
+    file_src = str(config_file) if config_file is not None else source
+    if config_file is not None:
+        data = load_yaml(config_file)
+        unknown = sorted(set(data) - set(SECTIONS))
+        if unknown:
+            raise ConfigError(
+                f"{file_src}: unknown section(s) {', '.join(map(repr, unknown))}; "
+                f"valid sections: {', '.join(SECTIONS)}"
+            )
+    env_section = _section(data, "env", file_src)
+    file_env_id = env_section.pop("id", None)
+    if env_id is None:
+        env_id = file_env_id
+    if env_id is None:
+        raise ConfigError("no env id: give ENV_ID or set env.id in the config file")
+    if file_env_id is not None and file_env_id != env_id:
+        raise ConfigError(f"{file_src}: the config is for env {file_env_id!r}, not {env_id!r}")
+    file_algo = data.get("algo")
+    if file_algo is not None and not isinstance(file_algo, str):
+        raise ConfigError(f"{file_src}: key 'algo' expects a string, got {file_algo!r}")
+    algo = algo or file_algo
+    if algo is None:
+        raise ConfigError("no algorithm: give --algo or set algo in the config file")
+    task_config = registry.make_config(env_id, env_section, f"{file_src} (env)")
+    config_cls, _ = algorithm(algo)
+    agent = apply_overrides(config_cls(), _section(data, "agent", file_src), f"{file_src} (agent)")
+    cli_agent = {k: v for k, v in (agent_overrides or {}).items() if v is not None}
+    agent = apply_overrides(agent, cli_agent, source)
+    run = apply_overrides(RunConfig(), _section(data, "train", file_src), f"{file_src} (train)")
+    cli_train = {k: v for k, v in (train_overrides or {}).items() if v is not None}
+    run = apply_overrides(run, cli_train, source)
+    return ResolvedConfig(env_id, task_config, algo, agent, run)
+
+
+def load_run_config(run_dir: str | Path) -> ResolvedConfig:
+    """The resolved config a run directory was started with."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise ConfigError(f"{run_dir} is not a run directory (no {CONFIG_FILE})")
+    return resolve_config(None, None, path)
+
+
+def build(resolved: ResolvedConfig) -> tuple[Env, Trainer]:
+    """The single env and the trainer of a resolved config."""
+    env = registry.spec(resolved.env_id).factory(resolved.env)
+    _, make_trainer = algorithm(resolved.algo)
+    return env, make_trainer(env, resolved.agent)
+
+
+def seed_keys(seed: int, num_seeds: int) -> jax.Array:
+    """One training key per seed: ``fold_in(key(seed), k)``."""
+    base = jax.random.key(seed)
+    return jax.vmap(lambda k: jax.random.fold_in(base, k))(jnp.arange(num_seeds))
+
+
+# ------------------------------------------------------------------------- evaluation
+def make_evaluator(
+    env: Env, act: Callable[[PyTree, jax.Array, jax.Array], jax.Array], episodes: int
+) -> Callable[[PyTree, jax.Array], tuple[jax.Array, Any, jax.Array]]:
+    """``evaluate(params, key) -> (returns (episodes,), trajectory, length)``.
+
+    Greedy episodes from fresh random starts, each until it terminates or truncates (no
+    auto-reset). ``trajectory`` is the first episode's States stacked over time (the
+    reset state first, ``episode_length + 1`` entries) and ``length`` its length, so
+    a video needs no second compile.
+    """
+
+    def evaluate(params: PyTree, key: jax.Array) -> tuple[jax.Array, Any, jax.Array]:
+        reset_key, act_key = jax.random.split(key)
+        first = jax.vmap(env.reset)(jax.random.split(reset_key, episodes))
+
+        def body(carry: tuple[Any, ...], k: jax.Array) -> tuple[tuple[Any, ...], Any]:
+            state, done, ret, length = carry
+            keys = jax.random.split(k, episodes)
+            action = jax.vmap(act, in_axes=(None, 0, 0))(params, state.obs, keys)
+            nxt = jax.vmap(env.step)(state, action)
+            ret = ret + jnp.where(done, 0.0, nxt.reward)
+            length = length + (~done).astype(jnp.int32)
+            return (nxt, done | nxt.done, ret, length), jax.tree.map(lambda x: x[0], nxt)
+
+        carry = (
+            first,
+            jnp.zeros(episodes, bool),
+            jnp.zeros(episodes, jnp.float32),
+            jnp.zeros(episodes, jnp.int32),
+        )
+        keys = jax.random.split(act_key, env.episode_length)
+        (_, _, ret, length), traj = jax.lax.scan(body, carry, keys)
+        head = jax.tree.map(lambda x: x[0], first)
+        traj = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), head, traj)
+        traj = traj.replace(key=jax.random.key_data(traj.key))  # host-convertible
+        return ret, traj, length[0]
+
+    return evaluate
+
+
+def eval_key(seed: int) -> jax.Array:
+    """The key of the final evaluation: independent of every training key."""
+    return jax.random.fold_in(jax.random.key(seed), 2**31 - 1)
+
+
+# ----------------------------------------------------------------------- progress I/O
+def _metric_columns(metric_shapes: Mapping[str, Any]) -> list[str]:
+    extra = sorted(
+        k for k, v in metric_shapes.items() if k not in CHUNK_METRICS and len(v.shape) == 1
+    )
+    return ["chunk", "seed", *CHUNK_METRICS, *extra, "eval_return", "wall_seconds"]
+
+
+def _read_progress(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        return []
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _write_progress(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
+    tmp = path.with_suffix(".csv.tmp")
+    with tmp.open("w", newline="") as f:
+        writer = csv.DictWriter(f, columns, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    tmp.replace(path)
+
+
+def _fmt(x: Any) -> str:
+    x = np.asarray(x).item()
+    if isinstance(x, float):
+        return "nan" if math.isnan(x) else f"{x:.6g}"
+    return str(x)
+
+
+def _write_json(path: Path, data: Mapping[str, Any]) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n")
+    tmp.replace(path)
+
+
+# ------------------------------------------------------------------------ the runner
+class _Progress:
+    """tqdm bar over env steps, or nothing when quiet / not a terminal."""
+
+    def __init__(self, total: int, initial: int, quiet: bool, desc: str) -> None:
+        self.bar = None
+        if not quiet and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, desc=desc, unit="step", smoothing=0.3)
+
+    def update(self, steps: int, postfix: dict[str, str]) -> None:
+        if self.bar is not None:
+            self.bar.update(steps)
+            self.bar.set_postfix(postfix, refresh=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _rate_key(metrics: Mapping[str, Any]) -> str | None:
+    for key in ("epsilon", "learning_rate", "lr"):
+        if key in metrics:
+            return key
+    return None
+
+
+def train(
+    resolved: ResolvedConfig,
+    out_dir: str | Path,
+    *,
+    resume: bool = False,
+    quiet: bool = False,
+    max_chunks: int | None = None,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Train (or continue) a run in ``out_dir``; returns the summary it writes.
+
+    Args:
+      resolved: the config (for ``resume``, :func:`load_run_config` of ``out_dir``).
+      out_dir: the run directory (created).
+      resume: continue from ``out_dir/checkpoint.npz``.
+      quiet: no progress bar (it is also off when stderr is not a terminal).
+      max_chunks: stop after this many chunks in THIS call (as if interrupted there;
+        the run can be resumed); ``None`` runs to the end.
+      log: where one-line notices go (default: stderr unless quiet).
+
+    Ctrl-C stops after the chunk in flight is discarded: the checkpoint of the last
+    finished chunk stays valid, and the results so far are written.
+    """
+    t0 = time.perf_counter()
+    say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    env, trainer = build(resolved)
+    run = resolved.train
+    keys = seed_keys(run.seed, run.num_seeds)
+    init_fn = jax.jit(jax.vmap(trainer.init))
+    chunk_fn = jax.jit(jax.vmap(trainer.chunk))
+    params_fn = jax.vmap(trainer.policy_params)
+    evaluator = make_evaluator(env, trainer.act, run.eval_episodes)
+    evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, None)))
+    template = jax.eval_shape(init_fn, keys)
+    metric_shapes = jax.eval_shape(chunk_fn, template)[1]
+    columns = _metric_columns(metric_shapes)
+    ckpt_path = out / CHECKPOINT_FILE
+
+    if resume:
+        state, meta = checkpoint.load(ckpt_path, template)
+        start = int(meta["chunk"])
+        wall_before = float(meta["wall_seconds"])
+        top = np.asarray(meta["top_lengths"], np.float32).reshape(run.num_seeds, -1)
+        rows: list[dict[str, Any]] = [
+            r for r in _read_progress(out / PROGRESS_FILE) if int(r["chunk"]) < start
+        ]
+        finished = bool(meta.get("finished", False))
+        say(f"resuming {out} at chunk {start}/{trainer.num_chunks}")
+    else:
+        (out / CONFIG_FILE).write_text(yaml.safe_dump(resolved.to_dict(), sort_keys=False))
+        state = init_fn(keys)
+        start, wall_before, rows, finished = 0, 0.0, [], False
+        top = np.full((run.num_seeds, 0), -1.0, np.float32)
+
+    def save_checkpoint() -> None:
+        checkpoint.save(
+            ckpt_path,
+            state,
+            {
+                "chunk": done_chunks,
+                "wall_seconds": wall_before + time.perf_counter() - t0,
+                "top_lengths": top.tolist(),
+                "finished": finished,
+                "env_id": resolved.env_id,
+                "algo": resolved.algo,
+            },
+        )
+
+    done_chunks = start
+    if not resume:
+        save_checkpoint()
+    stop = trainer.num_chunks if max_chunks is None else min(trainer.num_chunks, start + max_chunks)
+    bar = _Progress(
+        trainer.num_chunks * trainer.steps_per_chunk,
+        start * trainer.steps_per_chunk,
+        quiet,
+        f"{resolved.algo} {resolved.env_id}",
+    )
+    interrupted = False
+
+    try:
+        while done_chunks < stop and not finished:
+            last = time.perf_counter()
+            new_state, metrics = chunk_fn(state)
+            metrics = jax.device_get(metrics)
+            state = new_state
+            done_chunks += 1
+            now = time.perf_counter()
+            eval_mean = math.nan
+            if run.eval_every and done_chunks % run.eval_every == 0:
+                returns, _, _ = evaluate(params_fn(state), eval_key(run.seed))
+                eval_mean = float(np.mean(returns))
+            wall = wall_before + time.perf_counter() - t0
+            for k in range(run.num_seeds):
+                row: dict[str, Any] = {c: _fmt(metrics[c][k]) for c in columns if c in metrics}
+                row.update(chunk=done_chunks - 1, seed=k, wall_seconds=f"{wall:.3f}")
+                row["eval_return"] = _fmt(eval_mean)
+                rows.append(row)
+            if "top_lengths" in metrics:
+                both = np.concatenate([top, np.asarray(metrics["top_lengths"], np.float32)], 1)
+                top = -np.sort(-both, axis=1)[:, : min(100, both.shape[1])]
+            if "active_envs" in metrics and not np.any(np.asarray(metrics["active_envs"]) > 0):
+                finished = True
+            if done_chunks >= trainer.num_chunks:
+                finished = True
+            _write_progress(out / PROGRESS_FILE, columns, rows)
+            save_checkpoint()
+            rk = _rate_key(metrics)
+            postfix = {
+                "ep/s": f"{float(np.sum(metrics['episodes_in_chunk'])) / (now - last):.0f}",
+                "steps/s": f"{trainer.steps_per_chunk * run.num_seeds / (now - last):.3g}",
+                "return": f"{np.nanmean(metrics['mean_return']):.1f}"
+                if np.any(np.isfinite(metrics["mean_return"]))
+                else "-",
+            }
+            if rk is not None:
+                postfix[rk] = f"{float(np.mean(metrics[rk])):.3g}"
+            bar.update(trainer.steps_per_chunk, postfix)
+    except KeyboardInterrupt:
+        interrupted = True
+        say(
+            f"interrupted: results and checkpoint are of chunk {done_chunks}; resume with "
+            f"--resume {out}"
+        )
+    finally:
+        bar.close()
+
+    wall = wall_before + time.perf_counter() - t0
+    returns, trajectory, lengths = jax.device_get(evaluate(params_fn(state), eval_key(run.seed)))
+    returns = np.asarray(returns)
+    summary = _summary(rows, returns, top, wall, done_chunks, trainer.num_chunks, finished)
+    summary.update(env_id=resolved.env_id, algo=resolved.algo, interrupted=interrupted)
+    _write_json(out / SUMMARY_FILE, summary)
+    try:
+        plot_curves([out], out / CURVE_FILE)
+    except Exception as err:  # noqa: BLE001 - a plot must never lose the results
+        say(f"no learning curve: {err}")
+    if run.video and not interrupted:
+        best = int(np.argmax(returns.mean(axis=1)))
+        traj = jax.tree.map(lambda x: x[best], trajectory)
+        write_policy_video(env, traj, int(lengths[best]), out / VIDEO_FILE, say)
+    if interrupted:
+        raise KeyboardInterrupt
+    return summary
+
+
+def _summary(
+    rows: list[dict[str, Any]],
+    eval_returns: np.ndarray,
+    top: np.ndarray,
+    wall: float,
+    chunks: int,
+    num_chunks: int,
+    finished: bool,
+) -> dict[str, Any]:
+    num_seeds = eval_returns.shape[0]
+    per_seed_steps, per_seed_eps, overall = [], [], []
+    for k in range(num_seeds):
+        mine = [r for r in rows if int(r["seed"]) == k]
+        steps = int(float(mine[-1]["env_steps"])) if mine else 0
+        eps = int(float(mine[-1]["episodes"])) if mine else 0
+        total_len = sum(
+            float(r["mean_length"]) * float(r["episodes_in_chunk"])
+            for r in mine
+            if r["mean_length"] not in ("nan", "") and float(r["episodes_in_chunk"]) > 0
+        )
+        per_seed_steps.append(steps)
+        per_seed_eps.append(eps)
+        overall.append(total_len / eps if eps else math.nan)
+    best100 = [float(np.mean(t[t >= 0][:100])) if np.any(t >= 0) else math.nan for t in top]
+    return {
+        "eval_mean_return": float(eval_returns.mean()),
+        "eval_std_return": float(eval_returns.std()),
+        "eval_mean_return_per_seed": eval_returns.mean(axis=1).tolist(),
+        "eval_episodes": int(eval_returns.size),
+        "env_steps": int(sum(per_seed_steps)),
+        "env_steps_per_seed": per_seed_steps,
+        "episodes": int(sum(per_seed_eps)),
+        "wall_seconds": round(wall, 3),
+        "overall_score": float(np.nanmean(overall)) if num_seeds else math.nan,
+        "overall_score_per_seed": overall,
+        "best_100_score": float(np.nanmean(best100)) if top.size else None,
+        "best_100_score_per_seed": best100 if top.size else None,
+        "chunks": chunks,
+        "num_chunks": num_chunks,
+        "finished": finished,
+        "num_seeds": num_seeds,
+    }
+
+
+def write_policy_video(
+    env: Env, trajectory: Any, length: int, path: Path, say: Callable[[str], None]
+) -> Path | None:
+    """Render one episode (stacked States, reset state first) with :mod:`jaxenvs.render`.
+
+    Rendering is optional: when :mod:`jaxenvs.render` is missing or fails (no GL backend,
+    no ffmpeg), ``say`` gets a one-line notice and ``None`` is returned.
+    """
+    try:
+        render = importlib.import_module("jaxenvs.render")
+    except ImportError as err:
+        say(f"no video: rendering is not available ({err})")
+        return None
+    try:
+        states = jax.tree.map(lambda x: np.asarray(x)[: length + 1], trajectory)
+        frames = render.render_frames(env, states)
+        render.write_video(frames, path, fps=min(1.0 / env.control_dt, 60.0))
+    except Exception as err:  # noqa: BLE001 - the video is optional
+        say(f"no video: {str(err).splitlines()[0] if str(err) else type(err).__name__}")
+        return None
+    return path
+
+
+# ------------------------------------------------------------------ using a finished run
+def restore(run_dir: str | Path) -> tuple[ResolvedConfig, Env, Trainer, PyTree]:
+    """Config, env, trainer and the (seed-batched) runner state of a run directory."""
+    resolved = load_run_config(run_dir)
+    env, trainer = build(resolved)
+    keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
+    template = jax.eval_shape(jax.vmap(trainer.init), keys)
+    state, _ = checkpoint.load(Path(run_dir) / CHECKPOINT_FILE, template)
+    return resolved, env, trainer, state
+
+
+def _best_seed(run_dir: Path, num_seeds: int) -> int:
+    try:
+        per_seed = json.loads((run_dir / SUMMARY_FILE).read_text())["eval_mean_return_per_seed"]
+        return int(np.argmax(per_seed)) if len(per_seed) == num_seeds else 0
+    except (OSError, ValueError, KeyError):
+        return 0
+
+
+def load_policy(
+    run_dir: str | Path,
+) -> tuple[str, Env, Callable[[jax.Array, jax.Array], jax.Array]]:
+    """``(env_id, env, act_fn)`` of a run: ``act_fn(obs, key) -> action`` for ONE obs.
+
+    The policy is the greedy policy of the seed with the best final evaluation (seed 0
+    when there is no summary). ``act_fn`` is jittable and vmappable.
+    """
+    resolved, env, trainer, state = restore(run_dir)
+    seed = _best_seed(Path(run_dir), resolved.train.num_seeds)
+    params = jax.tree.map(lambda x: x[seed], jax.vmap(trainer.policy_params)(state))
+
+    def act_fn(obs: jax.Array, key: jax.Array) -> jax.Array:
+        return trainer.act(params, obs, key)
+
+    return resolved.env_id, env, act_fn
+
+
+def evaluate_run(
+    run_dir: str | Path, episodes: int, seed: int | None = None, video: str | Path | None = None
+) -> dict[str, Any]:
+    """Greedy evaluation of every seed of a run from its checkpoint (and a video)."""
+    resolved, env, trainer, state = restore(run_dir)
+    k = resolved.train.seed + 1 if seed is None else seed
+    params = jax.vmap(trainer.policy_params)(state)
+    evaluate = jax.jit(jax.vmap(make_evaluator(env, trainer.act, episodes), in_axes=(0, None)))
+    returns, trajectory, lengths = jax.device_get(evaluate(params, eval_key(k)))
+    returns = np.asarray(returns)
+    result = {
+        "env_id": resolved.env_id,
+        "algo": resolved.algo,
+        "episodes": int(returns.size),
+        "mean_return": float(returns.mean()),
+        "std_return": float(returns.std()),
+        "mean_return_per_seed": returns.mean(axis=1).tolist(),
+    }
+    if video is not None:
+        best = int(np.argmax(returns.mean(axis=1)))
+        traj = jax.tree.map(lambda x: x[best], trajectory)
+        msgs: list[str] = []
+        written = write_policy_video(env, traj, int(lengths[best]), Path(video), msgs.append)
+        result["video"] = str(written) if written else None
+        if msgs:
+            result["video_error"] = msgs[0]
+    return result
+
+
+# ------------------------------------------------------------------------------ plots
+def learning_curve(run_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """``(env_steps per chunk, mean_return (chunks, seeds))`` from a run's progress.csv."""
+    rows = _read_progress(Path(run_dir) / PROGRESS_FILE)
+    if not rows:
+        raise ValueError(f"{run_dir}: no progress recorded yet ({PROGRESS_FILE})")
+    chunks = sorted({int(r["chunk"]) for r in rows})
+    seeds = sorted({int(r["seed"]) for r in rows})
+    index = {(int(r["chunk"]), int(r["seed"])): r for r in rows}
+    steps = np.zeros(len(chunks))
+    ret = np.full((len(chunks), len(seeds)), np.nan)
+    for i, c in enumerate(chunks):
+        for j, s in enumerate(seeds):
+            r = index.get((c, s))
+            if r is None:
+                continue
+            ret[i, j] = float(r["mean_return"])
+            steps[i] = max(steps[i], float(r["env_steps"]))
+    return steps, ret
+
+
+def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None = None) -> Path:
+    """Return vs env steps of each run: every seed thin, the mean bold, min-max shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for i, run_dir in enumerate(run_dirs):
+        steps, ret = learning_curve(run_dir)
+        label = labels[i] if labels else _run_label(Path(run_dir))
+        color = f"C{i}"
+        if ret.shape[1] > 1:
+            ax.plot(steps, ret, color=color, alpha=0.25, linewidth=0.8)
+            with np.errstate(all="ignore"):
+                lo, hi = np.nanmin(ret, axis=1), np.nanmax(ret, axis=1)
+            ax.fill_between(steps, lo, hi, color=color, alpha=0.15)
+        with np.errstate(all="ignore"):
+            mean = np.nanmean(ret, axis=1) if ret.shape[1] else ret
+        ax.plot(steps, mean, color=color, linewidth=2, label=f"{label} ({ret.shape[1]} seeds)")
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("mean episode return (per chunk)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    out = Path(out)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def _run_label(run_dir: Path) -> str:
+    try:
+        cfg = yaml.safe_load((run_dir / CONFIG_FILE).read_text())
+        return f"{cfg['algo']} {cfg['env']['id']} ({run_dir.name})"
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return run_dir.name

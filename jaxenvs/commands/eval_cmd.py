@@ -1,0 +1,34 @@
+"""``jaxenvs eval``: greedy evaluation of a trained run from its checkpoint."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+HELP = "evaluate the greedy policy of a run directory (return mean/std, optional video)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run_dir", metavar="DIR", help="a run directory written by jaxenvs train")
+    parser.add_argument("--episodes", type=int, default=20, help="episodes per seed")
+    parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's seed + 1)")
+    parser.add_argument("--video", metavar="OUT.mp4", help="render one greedy episode")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    from jaxenvs.agents import runner
+
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    result = runner.evaluate_run(args.run_dir, args.episodes, args.seed, args.video)
+    if args.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(
+        f"{result['algo']} on {result['env_id']}: return {result['mean_return']:.2f} "
+        f"+- {result['std_return']:.2f} over {result['episodes']} episodes"
+    )
+    if args.video:
+        print(f"video: {result['video']}" if result["video"] else result["video_error"])
+    return 0
