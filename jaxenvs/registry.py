@@ -128,7 +128,7 @@ def make(
 
 
 def _builtin() -> None:
-    from jaxenvs.tasks import cartpole
+    from jaxenvs.tasks import cartpole, reacher
 
     register(
         "CartPole-v0",
@@ -156,6 +156,13 @@ def _builtin() -> None:
         cartpole.BalanceConfig(swing_up=True),
         "swing up from hanging, dense reward, continuous force, 1000 steps",
         reward_threshold=800.0,
+    )
+    register(
+        "Reacher-v0",
+        reacher.Reacher,
+        reacher.ReacherConfig(),
+        "2-link planar arm reaching a random target: -distance - control cost, 50 steps",
+        reward_threshold=-3.75,
     )
 
 

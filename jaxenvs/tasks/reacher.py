@@ -1,0 +1,264 @@
+"""Reacher: a 2-link planar arm (``robots/reacher.xml``) reaching a random target.
+
+``Reacher-v0``
+
+* Robot: two hinges about z, links 0.1 m each (reach 0.2 m), capsule links of about
+  0.036 kg, joint armature 1 and damping 1, no joint limits (angles wrap freely), motors
+  of gear 200: ``ctrl`` in [-1, 1] gives +-200 N m. These are Gymnasium Reacher's
+  dynamics (its second link is 0.11 m), so that returns compare with Reacher-v5.
+* Target: a mocap body (moved by the task, never simulated), drawn uniformly in the disk
+  of radius ``params.target_radius`` (0.2 by default: everything the arm can reach) at
+  every reset, at the arm's height.
+* Observation (10), the order of Gymnasium's Reacher-v5::
+
+      0  cos(joint0)          5  target y
+      1  cos(joint1)          6  joint0 velocity (rad/s)
+      2  sin(joint0)          7  joint1 velocity (rad/s)
+      3  sin(joint1)          8  fingertip x - target x
+      4  target x             9  fingertip y - target y
+
+  (Reacher-v5 has the same ten entries; v4 added a constant-zero z difference.)
+* Action: Box(2) in [-1, 1], the two motor commands.
+* Reward: ``-|fingertip - target| - ctrl_cost_weight * |a|^2`` with the distance taken
+  AFTER the action's control step (Gymnasium v5 takes it before, i.e. rewards the
+  previous state; over an episode the two differ by d(start) - d(end), at most 0.4 and
+  about 0.1 for a policy that reaches). Defaults (weight 0.1, 50 steps) are Reacher-v5's,
+  so its "solved" return of -3.75 applies.
+* Termination: none. Truncation: ``episode_length`` (50) steps.
+* Start: joint angles uniform in +-``init_angle_noise`` (0.1 rad), velocities uniform in
+  +-``init_velocity_noise`` (0.005 rad/s), as Reacher-v5.
+* Timing: 0.02 s per control step as ONE Euler substep of 0.02 s (``substeps=1``).
+  Gymnasium runs two RK4 steps of 0.01 s. Measured over 20 random-action episodes
+  against RK4 at 1 ms (MuJoCo C, float64): Euler 1 x 0.02 s puts the fingertip 11 mm
+  off on average (53 mm worst) and moves an episode's summed distance by 0.07 (2% of
+  the solved threshold); Euler 2 x 0.01 s halves that (5.5 mm, 0.036) at half the
+  throughput. ``timestep=0.01, substeps=2`` selects it.
+* Physics: no contacts, no constraints, gravity off (no torque about vertical hinges),
+  Euler with damping integrated implicitly, dense Jacobian (measured faster than sparse
+  in MJX on the CPU). Each physics step runs MJX's stages in the order
+  actuation -> acceleration -> Euler -> position -> velocity, which is ``mjx.step``'s
+  work rotated by two stages: the same arithmetic (checked against ``mujoco.mj_step`` in
+  ``tests/test_parity.py``), but the data ends with the kinematics of the NEW state, so
+  the fingertip is read from the ``fingertip`` site in ``data.site_xpos`` without a
+  second kinematics pass (``mjx.step`` leaves positions one substep behind ``qpos``).
+
+Params (``ReacherParams``): ``model`` holds the MJX model fields ``body_mass``,
+``body_inertia``, ``dof_armature``, ``dof_damping`` and ``actuator_gear``;
+``target_radius`` bounds the target disk. ``sample_params`` (used by
+``make(..., num_envs=N, randomize=True)`` at each env's every reset) scales the links'
+masses and inertias together by ``mass_scale``, armature by ``armature_scale``, damping
+by ``damping_scale``, motor gear by ``gain_scale`` (one factor per link, dof or motor),
+and draws ``target_radius`` uniformly in ``target_radius_range``. No friction: the
+reacher has no contacts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from jaxenvs import randomize
+from jaxenvs.config import require
+from jaxenvs.core import Env, TaskConfig
+from jaxenvs.randomize import Range
+from jaxenvs.robots import robot_xml
+from jaxenvs.sim import Sim
+
+MODEL_FIELDS = ("body_mass", "body_inertia", "dof_armature", "dof_damping", "actuator_gear")
+LINK_LENGTH = 0.1
+REACH = 2 * LINK_LENGTH
+ARM_BODIES = ("link0", "link1")
+
+
+class ReacherParams(struct.PyTreeNode):
+    """Randomisable physics and task quantities.
+
+    Attributes:
+      model: MJX model fields swapped in at every step (see ``MODEL_FIELDS``).
+      target_radius: targets are drawn uniformly in the disk of this radius (m).
+    """
+
+    model: dict[str, jax.Array]
+    target_radius: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class ReacherConfig(TaskConfig):
+    """``Reacher-v0``.
+
+    Attributes:
+      episode_length: steps per episode (50 = 1 s, as Reacher-v5).
+      timestep, substeps: physics; the control period is their product (0.02 s).
+      ctrl_cost_weight: weight of ``|a|^2`` in the reward (Reacher-v5: 0.1).
+      target_radius: default radius of the target disk (m), at most the reach 0.2.
+      init_angle_noise: initial joint angles uniform in +- this (rad).
+      init_velocity_noise: initial joint velocities uniform in +- this (rad/s).
+      mass_scale: randomisation: factor on each link's mass and inertia.
+      armature_scale: randomisation: factor on each joint's armature.
+      damping_scale: randomisation: factor on each joint's damping.
+      gain_scale: randomisation: factor on each motor's gear (torque per unit action).
+      target_radius_range: randomisation: ``target_radius`` drawn uniformly in it.
+    """
+
+    episode_length: int = 50
+    timestep: float = 0.02
+    substeps: int = 1
+    ctrl_cost_weight: float = 0.1
+    target_radius: float = REACH
+    init_angle_noise: float = 0.1
+    init_velocity_noise: float = 0.005
+    mass_scale: Range = (0.8, 1.2)
+    armature_scale: Range = (0.8, 1.2)
+    damping_scale: Range = (0.8, 1.2)
+    gain_scale: Range = (0.8, 1.2)
+    target_radius_range: Range = (REACH, REACH)
+
+    def validate(self) -> None:
+        super().validate()
+        require(self.ctrl_cost_weight >= 0, "ctrl_cost_weight", "must be >= 0")
+        require(
+            0 < self.target_radius <= REACH + 1e-9,
+            "target_radius",
+            f"must be in (0, {REACH}] (the arm's reach)",
+        )
+        require(self.init_angle_noise >= 0, "init_angle_noise", "must be >= 0")
+        require(self.init_velocity_noise >= 0, "init_velocity_noise", "must be >= 0")
+        for name in ("mass_scale", "armature_scale", "damping_scale", "gain_scale"):
+            randomize.check_range(name, getattr(self, name), positive=True)
+        randomize.check_range(
+            "target_radius_range", self.target_radius_range, positive=True, max_high=REACH + 1e-9
+        )
+
+
+def physics_step(model: mjx.Model, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
+    """One Euler step of a constraint-free model, ending with the new state's kinematics.
+
+    ``data`` must hold the position and velocity stages of its own ``qpos``/``qvel`` (as
+    after ``mjx.forward`` or a previous call). The result equals ``mjx.step`` followed by
+    ``mjx.fwd_position`` and ``mjx.fwd_velocity``, at the cost of ``mjx.step`` alone.
+    """
+    data = mjx.fwd_acceleration(model, mjx.fwd_actuation(model, data.replace(ctrl=ctrl)))
+    data = mjx.euler(model, data.replace(qacc=data.qacc_smooth))
+    return mjx.fwd_velocity(model, mjx.fwd_position(model, data))
+
+
+class Reacher(Env[ReacherConfig]):
+    """``Reacher-v0``: put the fingertip of a 2-link planar arm on a random target.
+
+    See the module docstring for the full spec (observation layout, reward, timing).
+    ``extras`` is unused (the target lives in ``data.mocap_pos``).
+    """
+
+    metric_keys = ("distance", "ctrl_cost")
+
+    def __init__(self, config: ReacherConfig | None = None) -> None:
+        config = config or ReacherConfig()
+        super().__init__(config, Sim(robot_xml("reacher"), config.timestep, config.substeps))
+        m = self.sim.mj_model
+        off = mujoco.mjtDisableBit
+        needed = off.mjDSBL_CONSTRAINT | off.mjDSBL_CONTACT
+        if m.opt.integrator != mujoco.mjtIntegrator.mjINT_EULER or (
+            m.opt.disableflags & needed != needed
+        ):
+            raise ValueError("reacher.xml must use Euler with constraints and contacts disabled")
+        self._tip = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "fingertip")
+        arm = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in ARM_BODIES]
+        self._arm_mask = jnp.asarray(np.isin(np.arange(m.nbody), arm))
+        self._params = ReacherParams(
+            model=self.sim.default_fields(MODEL_FIELDS),
+            target_radius=jnp.asarray(config.target_radius, jnp.float32),
+        )
+        self._target_z = float(
+            m.body_pos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "target")][2]
+        )
+
+    observation_size = 10
+    action_size = 2
+
+    @property
+    def default_params(self) -> ReacherParams:
+        return self._params
+
+    def sample_params(self, key: jax.Array) -> ReacherParams:
+        """Params drawn from the config's randomisation ranges (see the module docstring)."""
+        c = self.config
+        mass_key, field_key, radius_key = jax.random.split(key, 3)
+        base = self._params.model
+        mass, inertia = randomize.scale_mass(
+            mass_key, base["body_mass"], base["body_inertia"], c.mass_scale, self._arm_mask
+        )
+        ranges = {
+            "dof_armature": c.armature_scale,
+            "dof_damping": c.damping_scale,
+            "actuator_gear": c.gain_scale,
+        }
+        fields = randomize.scale_fields(field_key, base, ranges)
+        fields.update(body_mass=mass, body_inertia=inertia)
+        radius = randomize.uniform(radius_key, c.target_radius_range)
+        return ReacherParams(model=fields, target_radius=radius)
+
+    def sample_target(self, key: jax.Array, radius: jax.Array) -> jax.Array:
+        """A point uniform in the disk of ``radius`` (area-uniform: r = R sqrt(u))."""
+        radius_key, angle_key = jax.random.split(key)
+        r = radius * jnp.sqrt(jax.random.uniform(radius_key))
+        phi = jax.random.uniform(angle_key, maxval=2 * math.pi)
+        return jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi)])
+
+    def _init(self, key: jax.Array, params: ReacherParams) -> tuple[mjx.Data, None]:
+        c = self.config
+        angle_key, vel_key, target_key = jax.random.split(key, 3)
+        qpos = jax.random.uniform(
+            angle_key, (2,), minval=-c.init_angle_noise, maxval=c.init_angle_noise
+        )
+        qvel = jax.random.uniform(
+            vel_key, (2,), minval=-c.init_velocity_noise, maxval=c.init_velocity_noise
+        )
+        target = self.sample_target(target_key, params.target_radius)
+        mocap = jnp.concatenate([target, jnp.full((1,), self._target_z)])[None]
+        data = self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap)
+        model = self.sim.model_with(params.model)
+        return mjx.fwd_velocity(model, mjx.fwd_position(model, data)), None
+
+    def _act(
+        self, data: mjx.Data, extras: None, action: jax.Array, params: ReacherParams
+    ) -> tuple[mjx.Data, None]:
+        model = self.sim.model_with(params.model)
+        if self.sim.substeps == 1:
+            return physics_step(model, data, action), extras
+
+        def body(d: mjx.Data, _: None) -> tuple[mjx.Data, None]:
+            return physics_step(model, d, action), None
+
+        data, _ = jax.lax.scan(body, data, None, length=self.sim.substeps)
+        return data, extras
+
+    def fingertip(self, data: mjx.Data) -> jax.Array:
+        """The fingertip's (x, y), read from the ``fingertip`` site."""
+        return data.site_xpos[self._tip, :2]
+
+    def _observe(self, data: mjx.Data, extras: None, params: ReacherParams) -> jax.Array:
+        target = data.mocap_pos[0, :2]
+        q = data.qpos
+        return jnp.concatenate(
+            [jnp.cos(q), jnp.sin(q), target, data.qvel, self.fingertip(data) - target]
+        )
+
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: None,
+        params: ReacherParams,
+    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]:
+        distance = jnp.linalg.norm(self.fingertip(data) - data.mocap_pos[0, :2])
+        ctrl_cost = self.config.ctrl_cost_weight * jnp.sum(jnp.square(action))
+        reward = -distance - ctrl_cost
+        return reward, jnp.zeros((), bool), {"distance": distance, "ctrl_cost": ctrl_cost}
