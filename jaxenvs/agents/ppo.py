@@ -1,0 +1,452 @@
+"""Proximal Policy Optimisation for every jaxenvs task, as one compiled program.
+
+``make_trainer(env, config)`` returns a :class:`jaxenvs.agents.base.Trainer`; one chunk
+runs ``updates_per_chunk`` PPO iterations, each one a rollout of ``num_steps`` steps of
+``num_envs`` auto-resetting envs followed by ``update_epochs`` epochs of
+``num_minibatches`` shuffled minibatches. ``base.make_train(trainer)`` turns it into a
+single ``train(key)`` (one ``jit``); ``vmap`` over keys trains many seeds at once.
+
+What the algorithm does (see also :mod:`jaxenvs.agents.losses`, :mod:`.networks`):
+
+* Bootstrapping: a transition's target uses the value of the state it really ended in,
+  ``info["final_obs"]`` (so a *truncated* episode bootstraps from its last observation,
+  not from the fresh reset one); a *terminated* one does not bootstrap.
+* Observation normalisation: running mean/variance of observations (merged batch by
+  batch at every env step) kept in the training state; the policy sees
+  ``clip((obs - mean) / std, -obs_clip, obs_clip)``. The rollout stores normalised
+  observations, so the update uses exactly what the behaviour policy saw.
+* Reward scaling: rewards are multiplied by ``reward_scale``; with ``normalize_rewards``
+  they are also divided by the running standard deviation of the discounted return
+  (as Stable-Baselines3's ``VecNormalize``).
+* Optimiser: Adam (eps 1e-5) after global-norm gradient clipping, learning rate annealed
+  linearly to zero over the run when ``anneal_lr``.
+* Continuous actions: a Gaussian clipped to [-1, 1] (see :mod:`.networks`); the greedy
+  policy is ``clip(mean)``; discrete: ``argmax`` of the logits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxenvs.agents import losses
+from jaxenvs.agents.base import Trainer
+from jaxenvs.agents.networks import (
+    ActorCritic,
+    categorical_entropy,
+    categorical_log_prob,
+    gaussian_entropy,
+    gaussian_log_prob,
+)
+from jaxenvs.config import require
+from jaxenvs.core import BatchedEnv, Env, State
+
+PyTree = Any
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyperparameters.
+
+    Attributes:
+      total_steps: env steps to train for (rounded down to whole chunks, at least one).
+      num_envs: parallel envs per seed.
+      num_steps: rollout length per env per update.
+      updates_per_chunk: PPO iterations per chunk (progress/checkpoint granularity).
+      update_epochs: passes over each rollout.
+      num_minibatches: minibatches per epoch (must divide num_envs * num_steps).
+      learning_rate: Adam step size (initial value when annealed).
+      anneal_lr: decay the learning rate linearly to zero over the run.
+      max_grad_norm: global-norm gradient clipping.
+      gamma, gae_lambda: discount and GAE lambda.
+      clip_eps: PPO ratio clip.
+      clip_value: also clip the value update (PPO2-style) with ``clip_eps``.
+      ent_coef, vf_coef: entropy bonus and value-loss weights.
+      normalize_advantages: per-minibatch advantage normalisation.
+      normalize_obs: running observation normalisation.
+      obs_clip: clip of normalised observations.
+      reward_scale: constant reward multiplier.
+      normalize_rewards: divide rewards by the running std of the discounted return.
+      actor_hidden, critic_hidden: MLP widths (tanh).
+      log_std_init: initial log standard deviation (continuous tasks).
+    """
+
+    total_steps: int = 500_000
+    num_envs: int = 64
+    num_steps: int = 64
+    updates_per_chunk: int = 4
+    update_epochs: int = 4
+    num_minibatches: int = 4
+    learning_rate: float = 3e-4
+    anneal_lr: bool = True
+    max_grad_norm: float = 0.5
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    clip_value: bool = True
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    normalize_advantages: bool = True
+    normalize_obs: bool = True
+    obs_clip: float = 10.0
+    reward_scale: float = 1.0
+    normalize_rewards: bool = False
+    actor_hidden: tuple[int, ...] = (64, 64)
+    critic_hidden: tuple[int, ...] = (64, 64)
+    log_std_init: float = 0.0
+
+    def validate(self) -> None:
+        for name in ("total_steps", "num_envs", "num_steps", "updates_per_chunk"):
+            require(getattr(self, name) > 0, name, "must be positive")
+        require(self.update_epochs > 0, "update_epochs", "must be positive")
+        require(self.num_minibatches > 0, "num_minibatches", "must be positive")
+        require(
+            (self.num_envs * self.num_steps) % self.num_minibatches == 0,
+            "num_minibatches",
+            f"must divide num_envs * num_steps ({self.num_envs * self.num_steps})",
+        )
+        require(self.learning_rate > 0, "learning_rate", "must be positive")
+        require(self.max_grad_norm > 0, "max_grad_norm", "must be positive")
+        require(0.0 <= self.gamma <= 1.0, "gamma", "must lie in [0, 1]")
+        require(0.0 <= self.gae_lambda <= 1.0, "gae_lambda", "must lie in [0, 1]")
+        require(self.clip_eps > 0, "clip_eps", "must be positive")
+        require(self.ent_coef >= 0, "ent_coef", "must be >= 0")
+        require(self.vf_coef >= 0, "vf_coef", "must be >= 0")
+        require(self.obs_clip > 0, "obs_clip", "must be positive")
+        require(self.reward_scale > 0, "reward_scale", "must be positive")
+        require(all(w > 0 for w in self.actor_hidden), "actor_hidden", "widths must be > 0")
+        require(all(w > 0 for w in self.critic_hidden), "critic_hidden", "widths must be > 0")
+
+    @property
+    def steps_per_update(self) -> int:
+        return self.num_envs * self.num_steps
+
+    @property
+    def steps_per_chunk(self) -> int:
+        return self.steps_per_update * self.updates_per_chunk
+
+    @property
+    def num_chunks(self) -> int:
+        return max(1, self.total_steps // self.steps_per_chunk)
+
+
+#: the config the runner builds when no file is given (``--algo ppo``).
+Config = PPOConfig
+DEFAULT_CONFIG = PPOConfig()
+
+
+# ------------------------------------------------------------------ running statistics
+class RunningStats(NamedTuple):
+    """Mean and variance of a stream of batches (Chan et al.'s parallel merge)."""
+
+    mean: jax.Array
+    var: jax.Array
+    n: jax.Array
+
+
+def stats_init(shape: tuple[int, ...]) -> RunningStats:
+    return RunningStats(
+        jnp.zeros(shape, jnp.float32), jnp.ones(shape, jnp.float32), jnp.asarray(1e-4)
+    )
+
+
+def stats_update(stats: RunningStats, batch: jax.Array) -> RunningStats:
+    """Merge a batch (leading axis = samples) into the running statistics."""
+    n = batch.shape[0]
+    b_mean = batch.mean(axis=0)
+    b_var = batch.var(axis=0)
+    total = stats.n + n
+    delta = b_mean - stats.mean
+    mean = stats.mean + delta * n / total
+    m2 = stats.var * stats.n + b_var * n + jnp.square(delta) * stats.n * n / total
+    return RunningStats(mean, m2 / total, total)
+
+
+def normalize(stats: RunningStats, x: jax.Array, clip: float) -> jax.Array:
+    return jnp.clip((x - stats.mean) / jnp.sqrt(stats.var + 1e-8), -clip, clip)
+
+
+# ------------------------------------------------------------------------ the trainer
+class RunnerState(NamedTuple):
+    """Everything one seed's training carries between chunks."""
+
+    params: PyTree
+    opt_state: PyTree
+    obs_stats: RunningStats
+    ret_stats: RunningStats
+    disc_return: jax.Array  # (num_envs,) running discounted return (reward normalisation)
+    env_state: State
+    key: jax.Array
+    env_steps: jax.Array
+    episodes: jax.Array
+    updates: jax.Array
+
+
+class PolicyParams(NamedTuple):
+    """What the greedy policy needs: network params and the observation statistics."""
+
+    params: PyTree
+    obs_stats: RunningStats
+
+
+class Transition(NamedTuple):
+    obs: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    next_value: jax.Array
+    reward: jax.Array
+    terminated: jax.Array
+    done: jax.Array
+    final_return: jax.Array
+    final_length: jax.Array
+
+
+def _sample_categorical(out: Any, key: jax.Array) -> jax.Array:
+    return jax.random.categorical(key, out).astype(jnp.int32)
+
+
+def _mode_categorical(out: Any) -> jax.Array:
+    return jnp.argmax(out, axis=-1).astype(jnp.int32)
+
+
+def _sample_gaussian(out: Any, key: jax.Array) -> jax.Array:
+    mean, log_std = out
+    return mean + jnp.exp(log_std) * jax.random.normal(key, mean.shape)
+
+
+def _mode_gaussian(out: Any) -> jax.Array:
+    return jnp.clip(out[0], -1.0, 1.0)
+
+
+class PolicyHead(NamedTuple):
+    """The distribution functions of one kind of policy output."""
+
+    sample: Callable[[Any, jax.Array], jax.Array]
+    log_prob: Callable[[Any, jax.Array], jax.Array]
+    entropy: Callable[[Any], jax.Array]
+    mode: Callable[[Any], jax.Array]
+
+
+CATEGORICAL = PolicyHead(
+    _sample_categorical, categorical_log_prob, categorical_entropy, _mode_categorical
+)
+GAUSSIAN = PolicyHead(
+    _sample_gaussian,
+    lambda out, a: gaussian_log_prob(out[0], out[1], a),
+    lambda out: gaussian_entropy(out[1]),
+    _mode_gaussian,
+)
+
+
+def make_network(env: Env, config: PPOConfig) -> ActorCritic:
+    return ActorCritic(
+        action_size=env.action_size,
+        discrete=env.discrete,
+        actor_hidden=config.actor_hidden,
+        critic_hidden=config.critic_hidden,
+        log_std_init=config.log_std_init,
+    )
+
+
+def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
+    """The PPO :class:`Trainer` of ``env`` (a single env; a batched one is unwrapped)."""
+    config.validate()
+    single: Env = env.env if isinstance(env, BatchedEnv) else env
+    benv = BatchedEnv(single, config.num_envs)
+    net = make_network(single, config)
+    head = CATEGORICAL if single.discrete else GAUSSIAN
+
+    def apply(params: PyTree, obs: jax.Array) -> tuple[Any, jax.Array]:
+        return net.apply(params, obs)  # type: ignore[return-value]
+
+    c = config
+    total_grad_steps = c.num_chunks * c.updates_per_chunk * c.update_epochs * c.num_minibatches
+    lr: float | optax.Schedule = (
+        optax.linear_schedule(c.learning_rate, 0.0, total_grad_steps)
+        if c.anneal_lr
+        else c.learning_rate
+    )
+    tx = optax.chain(optax.clip_by_global_norm(c.max_grad_norm), optax.adam(lr, eps=1e-5))
+    obs_dim = single.observation_size
+
+    def norm_obs(stats: RunningStats, obs: jax.Array) -> jax.Array:
+        return normalize(stats, obs, c.obs_clip) if c.normalize_obs else obs
+
+    def init(key: jax.Array) -> RunnerState:
+        net_key, env_key, run_key = jax.random.split(key, 3)
+        params = net.init(net_key, jnp.zeros((obs_dim,), jnp.float32))
+        env_state = benv.reset(env_key)
+        obs_stats = stats_init((obs_dim,))
+        if c.normalize_obs:
+            obs_stats = stats_update(obs_stats, env_state.obs)
+        return RunnerState(
+            params=params,
+            opt_state=tx.init(params),
+            obs_stats=obs_stats,
+            ret_stats=stats_init(()),
+            disc_return=jnp.zeros((c.num_envs,), jnp.float32),
+            env_state=env_state,
+            key=run_key,
+            env_steps=jnp.zeros((), jnp.int32),
+            episodes=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+        )
+
+    def env_step(rs: RunnerState, key: jax.Array) -> tuple[RunnerState, Transition]:
+        obs = norm_obs(rs.obs_stats, rs.env_state.obs)
+        out, value = apply(rs.params, obs)
+        action = head.sample(out, key)
+        logp = head.log_prob(out, action)
+        env_action = action if single.discrete else jnp.clip(action, -1.0, 1.0)
+        nxt = benv.step(rs.env_state, env_action)
+        obs_stats = stats_update(rs.obs_stats, nxt.obs) if c.normalize_obs else rs.obs_stats
+        _, next_value = apply(rs.params, norm_obs(obs_stats, nxt.info["final_obs"]))
+        reward = nxt.reward * c.reward_scale
+        disc_return = rs.disc_return * c.gamma + reward
+        ret_stats = rs.ret_stats
+        if c.normalize_rewards:
+            ret_stats = stats_update(ret_stats, disc_return)
+            reward = reward / jnp.sqrt(ret_stats.var + 1e-8)
+        done = nxt.done
+        trans = Transition(
+            obs=obs,
+            action=action,
+            log_prob=logp,
+            value=value,
+            next_value=next_value,
+            reward=reward,
+            terminated=nxt.terminated,
+            done=done,
+            final_return=nxt.info["final_return"],
+            final_length=nxt.info["final_length"],
+        )
+        rs = rs._replace(
+            obs_stats=obs_stats,
+            ret_stats=ret_stats,
+            disc_return=jnp.where(done, 0.0, disc_return),
+            env_state=nxt,
+        )
+        return rs, trans
+
+    def loss_fn(params: PyTree, batch: Transition, adv: jax.Array, ret: jax.Array):  # type: ignore[no-untyped-def]
+        out, value = apply(params, batch.obs)
+        logp = head.log_prob(out, batch.action)
+        if c.normalize_advantages:
+            adv = losses.normalize_advantages(adv)
+        pi_loss = losses.policy_loss(logp, batch.log_prob, adv, c.clip_eps)
+        v_loss = losses.value_loss(value, batch.value, ret, c.clip_eps if c.clip_value else None)
+        entropy = head.entropy(out).mean()
+        total = pi_loss + c.vf_coef * v_loss - c.ent_coef * entropy
+        aux = {
+            "policy_loss": pi_loss,
+            "value_loss": v_loss,
+            "entropy": entropy,
+            "approx_kl": losses.approx_kl(logp, batch.log_prob),
+        }
+        return total, aux
+
+    grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+
+    def sgd_step(carry, mb):  # type: ignore[no-untyped-def]
+        params, opt_state = carry
+        batch, adv, ret = mb
+        (loss, aux), grads = grad_fn(params, batch, adv, ret)
+        updates, opt_state = tx.update(grads, opt_state, params)
+        params = optax.apply_updates(params, updates)
+        return (params, opt_state), {"loss": loss, **aux}
+
+    def epoch(carry, key):  # type: ignore[no-untyped-def]
+        params, opt_state, data = carry
+        n = c.steps_per_update
+        perm = jax.random.permutation(key, n)
+
+        def split(x: jax.Array) -> jax.Array:
+            x = x.reshape((n, *x.shape[2:]))[perm]
+            return x.reshape((c.num_minibatches, n // c.num_minibatches, *x.shape[1:]))
+
+        minibatches = jax.tree.map(split, data)
+        (params, opt_state), stats = jax.lax.scan(sgd_step, (params, opt_state), minibatches)
+        return (params, opt_state, data), stats
+
+    def update(rs: RunnerState, _: None) -> tuple[RunnerState, dict[str, jax.Array]]:
+        key, rollout_key, epoch_key = jax.random.split(rs.key, 3)
+        rs = rs._replace(key=key)
+        rs, traj = jax.lax.scan(env_step, rs, jax.random.split(rollout_key, c.num_steps))
+        adv, ret = losses.gae(
+            traj.reward,
+            traj.value,
+            traj.next_value,
+            traj.terminated,
+            traj.done,
+            c.gamma,
+            c.gae_lambda,
+        )
+        (params, opt_state, _data), stats = jax.lax.scan(
+            epoch,
+            (rs.params, rs.opt_state, (traj, adv, ret)),
+            jax.random.split(epoch_key, c.update_epochs),
+        )
+        done = traj.done
+        n_done = done.sum()
+        ep = {
+            "n": n_done,
+            "ret_sum": jnp.sum(jnp.where(done, traj.final_return, 0.0)),
+            "ret_max": jnp.max(jnp.where(done, traj.final_return, -jnp.inf)),
+            "len_sum": jnp.sum(jnp.where(done, traj.final_length, 0)),
+        }
+        rs = rs._replace(
+            params=params,
+            opt_state=opt_state,
+            env_steps=rs.env_steps + c.steps_per_update,
+            episodes=rs.episodes + n_done.astype(jnp.int32),
+            updates=rs.updates + 1,
+        )
+        return rs, {**ep, **{k: v[-1].mean() for k, v in stats.items()}}
+
+    def chunk(rs: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
+        rs, m = jax.lax.scan(update, rs, None, length=c.updates_per_chunk)
+        n = m["n"].sum()
+        nan = jnp.asarray(jnp.nan, jnp.float32)
+        metrics = {
+            "env_steps": rs.env_steps,
+            "episodes": rs.episodes,
+            "mean_return": jnp.where(n > 0, m["ret_sum"].sum() / jnp.maximum(n, 1), nan),
+            "max_return": jnp.where(n > 0, m["ret_max"].max(), nan),
+            "mean_length": jnp.where(n > 0, m["len_sum"].sum() / jnp.maximum(n, 1), nan),
+            "episodes_in_chunk": n.astype(jnp.int32),
+            **{k: m[k][-1] for k in ("loss", "policy_loss", "value_loss", "entropy", "approx_kl")},
+        }
+        return rs, metrics
+
+    def policy_params(rs: RunnerState) -> PolicyParams:
+        return PolicyParams(rs.params, rs.obs_stats)
+
+    def act(pp: PolicyParams, obs: jax.Array, key: jax.Array) -> jax.Array:
+        del key  # the greedy policy is deterministic
+        out, _ = apply(pp.params, norm_obs(pp.obs_stats, obs))
+        return head.mode(out)
+
+    return Trainer(
+        init=init,
+        chunk=chunk,
+        policy_params=policy_params,
+        act=act,
+        steps_per_chunk=c.steps_per_chunk,
+        num_chunks=c.num_chunks,
+    )
+
+
+__all__ = [
+    "DEFAULT_CONFIG",
+    "Config",
+    "PPOConfig",
+    "PolicyParams",
+    "RunnerState",
+    "make_trainer",
+]
