@@ -1,0 +1,95 @@
+"""``jaxenvs bench`` on a tiny batch: it runs, writes valid JSON, reports missing peers."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pytest
+
+from jaxenvs import bench
+from jaxenvs.cli import main
+
+
+@pytest.fixture(scope="module")
+def bench_json(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    path = tmp_path_factory.mktemp("bench") / "bench.json"
+    code = main(
+        [
+            "bench",
+            "--tasks",
+            "CartPole-v0",
+            "--batches",
+            "2",
+            "--modes",
+            "full",
+            "--steps",
+            "5",
+            "--repeats",
+            "2",
+            "--target-s",
+            "0.01",
+            "--json",
+            str(path),
+        ]
+    )
+    assert code == 0
+    return json.loads(path.read_text())
+
+
+def test_bench_writes_valid_json(bench_json: dict) -> None:
+    (res,) = bench_json["results"]
+    assert res["name"] == "jaxenvs" and res["task"] == "CartPole-v0"
+    assert res["num_envs"] == 2 and res["variant"] == "full"
+    assert res["env_steps_per_s"] > 0
+    assert res["min_env_steps_per_s"] <= res["env_steps_per_s"] <= res["max_env_steps_per_s"]
+    assert res["first_call_s"] >= res["compile_s"] > 0
+    assert bench_json["machine"]["backend"] == "cpu"
+    assert bench_json["ratios"] == []
+
+
+def test_missing_peer_is_reported_skipped(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "envpool", None)  # import envpool -> ImportError
+    monkeypatch.setitem(sys.modules, "gymnax", None)
+    peers = bench.peer_runners("CartPole-v0", num_envs=2, gymnax_envs=2, sync_envs=2)
+    by_name = {p.name: p for p in peers}
+    assert set(by_name) == {
+        "gymnasium",
+        "gymnasium SyncVectorEnv",
+        "envpool",
+        "mujoco.rollout",
+        "gymnax",
+    }
+    for name in ("envpool", "gymnax"):
+        assert isinstance(by_name[name], bench.Skipped)
+        assert by_name[name].reason.startswith("not installed")
+        assert by_name[name].as_dict()["skipped"] is True
+    rollout = by_name["mujoco.rollout"]
+    assert isinstance(rollout, bench.Runner)
+    assert rollout.unit() == 2 * 200  # 2 envs x 200 control steps at 1 substep
+
+
+def test_ratios_compare_best_batch_to_each_peer() -> None:
+    results = [
+        {"name": "jaxenvs", "task": "T", "variant": "full", "num_envs": 4, "env_steps_per_s": 10},
+        {"name": "jaxenvs", "task": "T", "variant": "full", "num_envs": 8, "env_steps_per_s": 40},
+        {
+            "name": "jaxenvs",
+            "task": "T",
+            "variant": "functional",
+            "num_envs": 8,
+            "env_steps_per_s": 99,
+        },
+        {"name": "envpool", "task": "T", "variant": "X", "num_envs": 2, "env_steps_per_s": 20},
+        {"name": "gymnax", "task": "T", "variant": "Y", "skipped": True, "reason": "r"},
+    ]
+    (row,) = bench.ratios(results)
+    assert row["our_envs"] == 8 and row["ratio"] == pytest.approx(2.0)
+
+
+def test_bad_devices_and_mode_are_user_errors(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--tasks", "CartPole-v0", "--devices", "64"]) == 2
+    assert "--devices 64" in capsys.readouterr().err
+    assert main(["bench", "--tasks", "CartPole-v0", "--modes", "warp"]) == 2
+    assert "unknown mode" in capsys.readouterr().err
+    assert main(["bench", "--tasks", "NoSuchTask-v0"]) == 2
