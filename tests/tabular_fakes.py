@@ -1,0 +1,108 @@
+"""Tiny physics-free discrete tasks for fast agent and runner tests (no MJX compile).
+
+* ``Test-OneState-v0``: one observation (0), 2 actions, reward 1 per step; every
+  episode lasts ``episode_length`` steps and ends terminated (``terminate=True``) or
+  truncated. With episode_length 1 the fixed point of the Q-value is 1 when terminal
+  transitions do not bootstrap and 1 / (1 - gamma) when truncated ones do.
+* ``Test-Chain-v0``: position 0..length on a line; action 1 steps right, 0 steps left
+  (floored at 0); reaching ``length`` pays 1 and terminates; truncation after
+  ``episode_length`` steps. A random walk rarely gets there in time; going right always
+  does.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from collections.abc import Iterator
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import pytest
+from flax import struct
+
+from jaxenvs import registry
+from jaxenvs.core import Env, TaskConfig
+
+
+class FakeData(struct.PyTreeNode):
+    qpos: jax.Array
+    qvel: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class OneStateConfig(TaskConfig):
+    episode_length: int = 1
+    terminate: bool = False
+
+
+class OneState(Env[OneStateConfig]):
+    def __init__(self, config: OneStateConfig | None = None) -> None:
+        super().__init__(config or OneStateConfig(), SimpleNamespace(control_dt=0.02))  # type: ignore[arg-type]
+
+    observation_size = 1
+    action_size = 2
+    discrete = True
+    default_params = None
+
+    def _init(self, key, params):  # type: ignore[no-untyped-def]
+        return FakeData(qpos=jnp.zeros(1), qvel=jnp.zeros(1)), None
+
+    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+        return data, extras
+
+    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+        return data.qpos
+
+    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+        return jnp.ones((), jnp.float32), jnp.asarray(self.config.terminate), {}
+
+
+@dataclasses.dataclass(frozen=True)
+class ChainConfig(TaskConfig):
+    episode_length: int = 12
+    length: int = 6
+
+
+class Chain(Env[ChainConfig]):
+    def __init__(self, config: ChainConfig | None = None) -> None:
+        super().__init__(config or ChainConfig(), SimpleNamespace(control_dt=0.02))  # type: ignore[arg-type]
+
+    observation_size = 1
+    action_size = 2
+    discrete = True
+    default_params = None
+
+    def _init(self, key, params):  # type: ignore[no-untyped-def]
+        return FakeData(qpos=jnp.zeros(1), qvel=jnp.zeros(1)), None
+
+    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+        step = jnp.where(action == 1, 1.0, -1.0)
+        return data.replace(qpos=jnp.maximum(data.qpos + step, 0.0)), extras
+
+    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+        return data.qpos
+
+    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+        at_goal = data.qpos[0] >= self.config.length
+        return at_goal.astype(jnp.float32), at_goal, {}
+
+
+FAKES = {
+    "Test-OneState-v0": registry.EnvSpec("Test-OneState-v0", OneState, OneStateConfig()),
+    "Test-Chain-v0": registry.EnvSpec("Test-Chain-v0", Chain, ChainConfig()),
+}
+
+
+@contextlib.contextmanager
+def fake_envs() -> Iterator[None]:
+    """Make the fake ids resolvable by the registry, then remove them again.
+
+    They go straight into the id table (no Gymnasium registration), so tests that walk
+    ``list_envs()`` elsewhere never see them.
+    """
+    with pytest.MonkeyPatch.context() as mp:
+        for env_id, spec in FAKES.items():
+            mp.setitem(registry._REGISTRY, env_id, spec)
+        yield
