@@ -154,10 +154,15 @@ def resolve_config(
 ) -> ResolvedConfig:
     """Defaults <- config file <- command-line values (``None`` values are ignored).
 
+    Without ``config_file``, the shipped ``configs/<algo>_<env_id>.yaml`` is used when it
+    exists (see :func:`shipped_config`).
+
     Errors (unknown section or key, wrong type, impossible value) name the key and the
     file (or ``source``) they came from.
     """
     data: dict[str, Any] = {}
+    if config_file is None and env_id is not None and algo is not None:
+        config_file = shipped_config(algo, env_id)
     file_src = str(config_file) if config_file is not None else source
     if config_file is not None:
         data = load_yaml(config_file)
@@ -190,6 +195,13 @@ def resolve_config(
     cli_train = {k: v for k, v in (train_overrides or {}).items() if v is not None}
     run = apply_overrides(run, cli_train, source)
     return ResolvedConfig(env_id, task_config, algo, agent, run)
+
+
+def shipped_config(algo: str, env_id: str) -> Path | None:
+    """The tuned config shipped for ``algo`` on ``env_id`` (``configs/<algo>_<id>.yaml``),
+    used when no ``--config`` is given; ``None`` when there is none."""
+    path = Path(__file__).resolve().parent.parent / "configs" / f"{algo}_{env_id}.yaml"
+    return path if path.is_file() else None
 
 
 def load_run_config(run_dir: str | Path) -> ResolvedConfig:
