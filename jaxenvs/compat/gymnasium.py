@@ -1,0 +1,571 @@
+"""Gymnasium facade: every jaxenvs id as a ``gymnasium.Env`` and a ``gymnasium.vector.VectorEnv``.
+
+After ``import jaxenvs`` each registered id ``X`` is also registered with Gymnasium as
+``jaxenvs/X`` (with ``max_episode_steps`` = the task's episode length and the id's
+``reward_threshold``), including ids registered later through :func:`jaxenvs.register`::
+
+    env = gymnasium.make("jaxenvs/CartPole-v0", render_mode="rgb_array")
+    envs = gymnasium.make_vec("jaxenvs/CartPole-v0", num_envs=1024,
+                              vectorization_mode="vector_entry_point")
+
+Keyword arguments of ``make``/``make_vec`` other than ``render_mode``, ``width``,
+``height``, ``camera`` (and ``randomize`` for the vector env) override fields of the
+task's config, as in :func:`jaxenvs.make`.
+
+:class:`JaxEnv` (one env): numpy float32 observations, Python scalars in the 5-tuple,
+Gymnasium seeding (``reset(seed=)`` seeds ``np_random``, which draws the JAX key of every
+reset). ``reset`` and ``step`` are jitted once per task config and shared by every
+instance; a step moves the action to the device and ONE packed array (observation,
+reward, flags, info) back.
+
+:class:`JaxVectorEnv` (N envs): one jitted, vmapped :class:`~jaxenvs.core.BatchedEnv`
+step, one device-to-host transfer per step. Auto-reset is ``AutoresetMode.SAME_STEP``:
+an env whose episode ended in this step comes back already reset (a fresh random start);
+``infos["final_obs"]`` (an object array, ``None`` for envs that did not finish) holds the
+finished episode's last observation and ``infos["final_info"]`` its step info, each with
+its ``_``-prefixed mask, exactly as Gymnasium's ``SyncVectorEnv`` does in that mode.
+``reset(options={"reset_mask": mask})`` resets only the envs where ``mask`` is True.
+
+Info keys (single env values are Python scalars, vector values arrays with ``_key``
+masks): ``nan_actions``, ``diverged`` and the task's metrics (e.g. ``distance``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium.error import ResetNeeded
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from jaxenvs import registry
+from jaxenvs.core import BatchedEnv, Env, State
+
+PREFIX = "jaxenvs/"
+RENDER_MODES = ["rgb_array"]
+#: info keys every env reports besides its task metrics.
+BASE_INFO_KEYS = ("nan_actions", "diverged")
+
+
+def gym_id(env_id: str) -> str:
+    """The Gymnasium id of a jaxenvs id: ``"jaxenvs/" + env_id``."""
+    return PREFIX + env_id
+
+
+def register_spec(spec: registry.EnvSpec) -> None:
+    """Register ``jaxenvs/<spec.id>`` with Gymnasium (replacing an earlier registration)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # Gymnasium warns when an id is re-registered
+        gymnasium.register(
+            id=gym_id(spec.id),
+            entry_point=f"{__name__}:JaxEnv",
+            vector_entry_point=f"{__name__}:JaxVectorEnv",
+            max_episode_steps=int(spec.config.episode_length),
+            reward_threshold=spec.reward_threshold,
+            kwargs={"env_id": spec.id},
+        )
+
+
+# ----------------------------------------------------------------- compiled functions
+@dataclasses.dataclass(frozen=True)
+class _Layout:
+    """Column layout of the packed array a step sends to the host."""
+
+    obs_size: int
+    info_keys: tuple[str, ...]
+
+    @property
+    def reward(self) -> int:
+        return 2 * self.obs_size
+
+    @property
+    def width(self) -> int:
+        return 2 * self.obs_size + 3 + len(self.info_keys)
+
+
+def _pack(state: State, layout: _Layout) -> jax.Array:
+    """obs | final_obs | reward | terminated | truncated | info..., float32, last axis."""
+    lead = state.reward.shape
+    cols = [
+        state.obs,
+        state.info["final_obs"],
+        state.reward[..., None],
+        state.terminated[..., None],
+        state.truncated[..., None],
+    ]
+    cols += [jnp.reshape(state.info[k], (*lead, 1)) for k in layout.info_keys]
+    return jnp.concatenate([c.astype(jnp.float32) for c in cols], axis=-1)
+
+
+class _FlatState:
+    """Packs a State pytree into a few flat buffers (one per dtype) and back.
+
+    Flattening the ~100-leaf pytree of an ``mjx.Data`` in Python costs far more than a
+    small env's physics step, so the facade keeps its state as these buffers and only
+    the jitted functions see the tree. ``lead`` is the batch shape (``()`` or ``(N,)``).
+    """
+
+    def __init__(self, example: Any, lead: tuple[int, ...]) -> None:
+        leaves, self.treedef = jax.tree.flatten(example)
+        self.lead = lead
+        self.shapes = [tuple(x.shape[len(lead) :]) for x in leaves]
+        groups: dict[str, list[int]] = {}
+        for i, leaf in enumerate(leaves):
+            groups.setdefault(str(leaf.dtype), []).append(i)
+        #: (indices, is_key) per buffer; PRNG key leaves travel as they are.
+        self.groups: list[tuple[list[int], bool]] = []
+        for name in sorted(groups):
+            if name.startswith("key"):
+                self.groups += [([i], True) for i in groups[name]]
+            else:
+                self.groups.append((groups[name], False))
+
+    def pack(self, state: Any) -> tuple[jax.Array, ...]:
+        leaves = jax.tree.leaves(state)
+        out = []
+        for idx, is_key in self.groups:
+            if is_key:
+                out.append(leaves[idx[0]])
+            else:
+                parts = [jnp.reshape(leaves[i], (*self.lead, -1)) for i in idx]
+                out.append(jnp.concatenate(parts, axis=-1))
+        return tuple(out)
+
+    def unpack(self, bufs: tuple[jax.Array, ...]) -> Any:
+        leaves: list[Any] = [None] * len(self.shapes)
+        for buf, (idx, is_key) in zip(bufs, self.groups, strict=True):
+            if is_key:
+                leaves[idx[0]] = buf
+                continue
+            offset = 0
+            for i in idx:
+                size = int(np.prod(self.shapes[i], dtype=np.int64))
+                piece = buf[..., offset : offset + size]
+                leaves[i] = jnp.reshape(piece, (*self.lead, *self.shapes[i]))
+                offset += size
+        return jax.tree.unflatten(self.treedef, leaves)
+
+
+Bufs = tuple[jax.Array, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Compiled:
+    """Jitted functions of one (task, config, batch) shared by all facade instances.
+
+    ``reset(seed) -> (bufs, obs)``, ``step(bufs, action) -> (bufs, packed)``,
+    ``reset_masked(bufs, seed, mask) -> (bufs, obs)`` (batched only) and
+    ``unpack(bufs) -> State``; ``bufs`` is the :class:`_FlatState` form of the state.
+    """
+
+    env: Env
+    batched: BatchedEnv | None
+    layout: _Layout
+    reset: Callable[[Any], tuple[Bufs, jax.Array]]
+    step: Callable[[Bufs, Any], tuple[Bufs, jax.Array]]
+    reset_masked: Callable[[Bufs, Any, Any], tuple[Bufs, jax.Array]] | None
+    unpack: Callable[[Bufs], State]
+
+
+def _build(
+    env_id: str, overrides: dict[str, Any], num_envs: int | None, randomize: bool
+) -> _Compiled:
+    env = registry.make(env_id, **overrides)
+    assert isinstance(env, Env)
+    layout = _Layout(env.observation_size, BASE_INFO_KEYS + tuple(env.metric_keys))
+    task: Env | BatchedEnv = env
+    benv = None
+    if num_envs is not None:
+        task = benv = BatchedEnv(env, num_envs, randomize=randomize)
+    seed0 = jax.ShapeDtypeStruct((), jnp.uint32)
+    flat = _FlatState(
+        jax.eval_shape(lambda s: task.reset(jax.random.key(s)), seed0),
+        () if num_envs is None else (num_envs,),
+    )
+
+    def reset(seed: jax.Array) -> tuple[Bufs, jax.Array]:
+        state = task.reset(jax.random.key(seed))
+        return flat.pack(state), state.obs
+
+    def step(bufs: Bufs, action: jax.Array) -> tuple[Bufs, jax.Array]:
+        state = task.step(flat.unpack(bufs), action)
+        return flat.pack(state), _pack(state, layout)
+
+    def reset_masked(bufs: Bufs, seed: jax.Array, mask: jax.Array) -> tuple[Bufs, jax.Array]:
+        fresh = task.reset(jax.random.key(seed))
+
+        def pick(new: jax.Array, old: jax.Array) -> jax.Array:
+            return jnp.where(mask.reshape(mask.shape + (1,) * (old.ndim - 1)), new, old)
+
+        merged = jax.tree.map(pick, fresh, flat.unpack(bufs))
+        return flat.pack(merged), merged.obs
+
+    return _Compiled(
+        env=env,
+        batched=benv,
+        layout=layout,
+        reset=jax.jit(reset),
+        step=jax.jit(step),
+        reset_masked=None if benv is None else jax.jit(reset_masked),
+        unpack=jax.jit(flat.unpack),
+    )
+
+
+_CACHE: dict[Any, _Compiled] = {}
+
+
+def compiled(
+    env_id: str,
+    overrides: dict[str, Any] | None = None,
+    num_envs: int | None = None,
+    randomize: bool = False,
+) -> _Compiled:
+    """The shared jitted functions for ``env_id`` with ``overrides`` (built once)."""
+    overrides = dict(overrides or {})
+    config = registry.make_config(env_id, overrides, source=f"{gym_id(env_id)} kwargs")
+    try:
+        cache_key: Any = (registry.spec(env_id).factory, config, num_envs, randomize)
+        hash(cache_key)
+    except TypeError:  # a config with unhashable fields: no sharing
+        return _build(env_id, overrides, num_envs, randomize)
+    if cache_key not in _CACHE:
+        _CACHE[cache_key] = _build(env_id, overrides, num_envs, randomize)
+    return _CACHE[cache_key]
+
+
+# ------------------------------------------------------------------------- validation
+def _space_text(env: Env, num_envs: int | None = None) -> str:
+    space = env.action_space
+    if num_envs is None:
+        return str(space)
+    return f"{num_envs} actions of {space}, shape {(num_envs, *env.action_shape)}"
+
+
+def check_action(env: Env, action: Any, num_envs: int | None = None) -> np.ndarray:
+    """Validate ``action`` on the host; returns it as a numpy array of the env's dtype.
+
+    Raises ``ValueError`` naming the expected space for a wrong shape or dtype, or a
+    discrete action out of range.
+    """
+    lead = () if num_envs is None else (num_envs,)
+    expected = (*lead, *env.action_shape)
+    what = _space_text(env, num_envs)
+    if isinstance(action, (bool, np.bool_)):
+        raise ValueError(f"expected an action in {what}, got a bool")
+    try:
+        arr = np.asarray(action)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"expected an action in {what}, got {type(action).__name__}") from err
+    if arr.shape != expected:
+        raise ValueError(f"expected an action in {what} (shape {expected}), got shape {arr.shape}")
+    if env.discrete:
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"expected an integer action in {what}, got dtype {arr.dtype}")
+        if arr.size and (arr.min() < 0 or arr.max() >= env.action_size):
+            raise ValueError(
+                f"discrete action out of range for {what}: valid actions are "
+                f"0..{env.action_size - 1}, got {arr.min() if arr.min() < 0 else arr.max()}"
+            )
+        return arr.astype(np.int32, copy=False)
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise ValueError(f"expected a floating-point action in {what}, got dtype {arr.dtype}")
+    return arr.astype(np.float32, copy=False)
+
+
+def _check_render_mode(render_mode: str | None) -> None:
+    if render_mode is None or render_mode in RENDER_MODES:
+        return
+    if render_mode == "human":
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            raise ValueError(
+                "render_mode='human' needs a display and none was found (DISPLAY and "
+                "WAYLAND_DISPLAY are unset); use render_mode='rgb_array' (frames, videos "
+                "through gymnasium.wrappers.RecordVideo or `jaxenvs render`)"
+            )
+        raise ValueError(
+            "render_mode='human' is not provided by the Gymnasium facade; use "
+            f"render_mode='rgb_array' (supported: {RENDER_MODES})"
+        )
+    raise ValueError(f"unsupported render_mode {render_mode!r}; supported: {RENDER_MODES}")
+
+
+def _check_options(options: dict[str, Any] | None, allowed: tuple[str, ...]) -> dict[str, Any]:
+    if options is None:
+        return {}
+    if not isinstance(options, dict):
+        raise TypeError(f"options must be a dict, got {type(options).__name__}")
+    unknown = sorted(set(options) - set(allowed))
+    if unknown:
+        raise ValueError(
+            f"unsupported reset options {unknown}; supported: {list(allowed) or 'none'}"
+        )
+    return options
+
+
+def _seed32(rng: np.random.Generator) -> np.uint32:
+    """A uint32 drawn from Gymnasium's ``np_random``: the seed of the next JAX key."""
+    return rng.integers(0, 2**32, dtype=np.uint32)
+
+
+def _render_fps(env: Env) -> int:
+    return max(1, round(1.0 / env.control_dt))
+
+
+# --------------------------------------------------------------------------- one env
+class JaxEnv(gymnasium.Env):
+    """One jaxenvs task as a standard ``gymnasium.Env`` (see the module docstring).
+
+    Args:
+      env_id: a registered jaxenvs id (without the ``jaxenvs/`` prefix).
+      render_mode: ``None`` or ``"rgb_array"``.
+      width, height, camera: frame size and camera for ``render()`` (see
+        :mod:`jaxenvs.render`).
+      **overrides: fields of the task's config.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": RENDER_MODES, "render_fps": 50}
+
+    def __init__(
+        self,
+        env_id: str,
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera: str | int | None = None,
+        **overrides: Any,
+    ) -> None:
+        _check_render_mode(render_mode)
+        self._fns = compiled(env_id, overrides)
+        self.env_id = env_id
+        self.jax_env: Env = self._fns.env
+        self.observation_space = self.jax_env.observation_space
+        self.action_space = self.jax_env.action_space
+        self.render_mode = render_mode
+        self.metadata = {"render_modes": RENDER_MODES, "render_fps": _render_fps(self.jax_env)}
+        self._render_args = (width, height, camera)
+        self._renderer: Any = None
+        self._bufs: Bufs | None = None
+        self._n = self.jax_env.observation_size
+        self._info_keys = self._fns.layout.info_keys
+        self._info_bool = tuple(k == "diverged" for k in self._info_keys)
+
+    @property
+    def state(self) -> State | None:
+        """The current functional-API state (``None`` before the first reset)."""
+        return None if self._bufs is None else self._fns.unpack(self._bufs)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        _check_options(options, ())
+        self._bufs, obs = self._fns.reset(_seed32(self.np_random))
+        return np.array(obs), {}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._bufs is None:
+            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
+        action = check_action(self.jax_env, action)
+        self._bufs, packed = self._fns.step(self._bufs, action)
+        buf = np.asarray(packed)
+        n = self._n
+        info: dict[str, Any] = {}
+        for j, (key, is_bool) in enumerate(zip(self._info_keys, self._info_bool, strict=True)):
+            value = buf[2 * n + 3 + j]
+            info[key] = bool(value) if is_bool else float(value)
+        info["nan_actions"] = int(info["nan_actions"])
+        return (
+            buf[:n].copy(),
+            float(buf[2 * n]),
+            bool(buf[2 * n + 1]),
+            bool(buf[2 * n + 2]),
+            info,
+        )
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() called without a render_mode; pass render_mode='rgb_array' to make()"
+            )
+            return None
+        if self._bufs is None:
+            raise ResetNeeded("Cannot call env.render() before calling env.reset()")
+        if self._renderer is None:
+            from jaxenvs.render import Renderer
+
+            self._renderer = Renderer(self.jax_env, *self._render_args)
+        return self._renderer.render_state(self.state)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        super().close()
+
+
+# ------------------------------------------------------------------------ vector env
+class JaxVectorEnv(VectorEnv):
+    """``num_envs`` copies of a jaxenvs task as a ``gymnasium.vector.VectorEnv``.
+
+    Args:
+      env_id: a registered jaxenvs id (without the ``jaxenvs/`` prefix).
+      num_envs: number of envs, stepped by one jitted vmapped function.
+      max_episode_steps: the episode length (``make_vec`` passes the registered one);
+        a different value overrides the task's ``episode_length``.
+      randomize: draw per-env params at every reset (domain randomisation).
+      render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns one frame per env).
+      width, height, camera: frame size and camera.
+      **overrides: fields of the task's config.
+    """
+
+    metadata: dict[str, Any] = {
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+        "render_modes": RENDER_MODES,
+        "render_fps": 50,
+    }
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int = 1,
+        max_episode_steps: int | None = None,
+        randomize: bool = False,
+        render_mode: str | None = None,
+        width: int = 640,
+        height: int = 480,
+        camera: str | int | None = None,
+        **overrides: Any,
+    ) -> None:
+        _check_render_mode(render_mode)
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if max_episode_steps is not None:
+            default = registry.make_config(env_id, overrides).episode_length
+            if int(max_episode_steps) != default:
+                overrides["episode_length"] = int(max_episode_steps)
+        self._fns = compiled(env_id, overrides, num_envs, bool(randomize))
+        self.env_id = env_id
+        self.jax_env: Env = self._fns.env
+        self.num_envs = num_envs
+        self.single_observation_space = self.jax_env.observation_space
+        self.single_action_space = self.jax_env.action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self.render_mode = render_mode
+        self.metadata = {
+            "autoreset_mode": AutoresetMode.SAME_STEP,
+            "render_modes": RENDER_MODES,
+            "render_fps": _render_fps(self.jax_env),
+        }
+        self._render_args = (width, height, camera)
+        self._renderer: Any = None
+        self._bufs: Bufs | None = None
+        self._n = self.jax_env.observation_size
+        self._info_keys = self._fns.layout.info_keys
+        self._all = np.ones(num_envs, dtype=bool)
+
+    @property
+    def state(self) -> State | None:
+        """The current batched functional-API state (``None`` before the first reset)."""
+        return None if self._bufs is None else self._fns.unpack(self._bufs)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise ValueError(f"seed must be an int or None, got {type(seed).__name__}")
+        super().reset(seed=seed)
+        opts = _check_options(options, ("reset_mask",))
+        seed32 = _seed32(self.np_random)
+        if "reset_mask" not in opts:
+            self._bufs, obs = self._fns.reset(seed32)
+            return np.array(obs), {}
+        mask = opts["reset_mask"]
+        if not isinstance(mask, np.ndarray):
+            raise TypeError(f"options['reset_mask'] must be a numpy array, got {type(mask)}")
+        if mask.shape != (self.num_envs,) or mask.dtype != np.bool_:
+            raise ValueError(
+                f"options['reset_mask'] must be a bool array of shape ({self.num_envs},), "
+                f"got {mask.dtype} {mask.shape}"
+            )
+        if not mask.any():
+            raise ValueError("options['reset_mask'] must contain at least one True value")
+        if self._bufs is None:
+            raise ResetNeeded("reset with a reset_mask needs a full reset() first")
+        assert self._fns.reset_masked is not None
+        self._bufs, obs = self._fns.reset_masked(self._bufs, seed32, mask)
+        return np.array(obs), {}
+
+    def step(
+        self, actions: Any
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        if self._bufs is None:
+            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
+        actions = check_action(self.jax_env, actions, self.num_envs)
+        self._bufs, packed = self._fns.step(self._bufs, actions)
+        buf = np.asarray(packed)
+        n, r = self._n, 2 * self._n
+        obs = np.ascontiguousarray(buf[:, :n])
+        rewards = buf[:, r].astype(np.float64)
+        terminated = buf[:, r + 1] > 0.5
+        truncated = buf[:, r + 2] > 0.5
+        done = terminated | truncated
+        values = {
+            k: (buf[:, r + 3 + j] > 0.5) if k == "diverged" else buf[:, r + 3 + j].copy()
+            for j, k in enumerate(self._info_keys)
+        }
+        values["nan_actions"] = values["nan_actions"].astype(np.int64)
+        infos: dict[str, Any] = {}
+        if not done.any():
+            for k, v in values.items():
+                infos[k], infos[f"_{k}"] = v, self._all
+            return obs, rewards, terminated, truncated, infos
+        # SAME_STEP: finished envs report their last step under final_obs / final_info;
+        # the top-level info of an auto-reset env is its (empty) reset info.
+        running = ~done
+        for k, v in values.items():
+            infos[k], infos[f"_{k}"] = v, running
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for i in np.flatnonzero(done):
+            final_obs[i] = buf[i, n:r].copy()
+        final_info: dict[str, Any] = {}
+        for k, v in values.items():
+            final_info[k], final_info[f"_{k}"] = v, done
+        infos["final_obs"], infos["_final_obs"] = final_obs, done
+        infos["final_info"], infos["_final_info"] = final_info, done
+        return obs, rewards, terminated, truncated, infos
+
+    def render(self) -> tuple[np.ndarray, ...] | None:
+        if self.render_mode is None:
+            gymnasium.logger.warn(
+                "render() called without a render_mode; pass render_mode='rgb_array'"
+            )
+            return None
+        if self._bufs is None:
+            raise ResetNeeded("Cannot call render() before calling reset()")
+        if self._renderer is None:
+            from jaxenvs.render import Renderer
+
+            self._renderer = Renderer(self.jax_env, *self._render_args)
+        state = self.state
+        assert state is not None
+        data = state.data
+        qpos, mpos, mquat = (np.asarray(x) for x in (data.qpos, data.mocap_pos, data.mocap_quat))
+        return tuple(self._renderer.frame(qpos[i], mpos[i], mquat[i]) for i in range(self.num_envs))
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+for _env_id in registry.list_envs():
+    register_spec(registry.spec(_env_id))

@@ -1,0 +1,338 @@
+"""Headless rendering: GL backend selection, frames from functional-API states, videos.
+
+Frames come from MuJoCo's own renderer (``mujoco.Renderer``) on the host model of a task
+(``env.sim.mj_model``): a state's ``qpos`` and mocap poses are copied into a host
+``MjData``, kinematics are recomputed, and the scene is drawn from the task's camera.
+
+Camera choice, first match wins: the ``camera`` argument (name or index); the task's
+``render_camera`` attribute if it has one; the model's first camera (``cartpole.xml``'s
+``"side"``); otherwise a free camera looking at the model's centre (a warning says so).
+
+GL backend: MuJoCo reads ``MUJOCO_GL`` when it is first imported, which usually happens
+before anyone thinks of rendering. :func:`select_gl_backend` therefore probes the headless
+backends itself (EGL, then OSMesa; only the one named in ``MUJOCO_GL`` if that is set),
+each in a short subprocess so that a broken driver cannot take this process down, then
+points MuJoCo's context class at the first one that works. When none works it raises
+:class:`GLBackendError` naming the system packages to install.
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib
+import os
+import subprocess
+import sys
+import tempfile
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+
+#: headless backends tried in order when ``MUJOCO_GL`` is not set.
+HEADLESS_BACKENDS = ("egl", "osmesa")
+
+#: what to install for each backend (Debian/Ubuntu package names).
+INSTALL_HINTS = {
+    "egl": "EGL with a Mesa driver: apt-get install -y libegl1 libegl-mesa0 libgl1",
+    "osmesa": "OSMesa: apt-get install -y libosmesa6",
+    "glfw": "a display (X11/Wayland) and glfw: pip install glfw",
+    "glx": "a display (X11) and libgl1",
+}
+
+_PROBE = (
+    "import mujoco\n"
+    'm = mujoco.MjModel.from_xml_string(\'<mujoco><worldbody><geom size="1"/></worldbody>'
+    "</mujoco>')\n"
+    "r = mujoco.Renderer(m, 8, 8)\n"
+    "d = mujoco.MjData(m)\n"
+    "mujoco.mj_forward(m, d)\n"
+    "r.update_scene(d)\n"
+    "r.render()\n"
+    "r.close()\n"
+)
+
+_selected: str | None = None
+
+
+class GLBackendError(OSError):
+    """No OpenGL backend for offscreen rendering works on this machine."""
+
+
+def _probe_backend(backend: str) -> str | None:
+    """Try ``backend`` in a subprocess; ``None`` if it renders, else why it failed."""
+    env = dict(os.environ, MUJOCO_GL=backend, PYOPENGL_PLATFORM=backend)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # JAX's fork notice; we exec
+            proc = subprocess.run(
+                [sys.executable, "-c", _PROBE],
+                env=env,
+                capture_output=True,
+                text=True,
+                timeout=120,
+                check=False,
+            )
+    except (OSError, subprocess.TimeoutExpired) as err:
+        return f"{type(err).__name__}: {err}"
+    if proc.returncode == 0:
+        return None
+    lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]
+    return lines[-1] if lines else f"exit status {proc.returncode}"
+
+
+def _try_context() -> None:
+    """Create and free a tiny GL context in this process (raises if it cannot)."""
+    model = mujoco.MjModel.from_xml_string("<mujoco/>")
+    renderer = mujoco.Renderer(model, 8, 8)
+    renderer.close()
+
+
+def _activate(backend: str) -> None:
+    """Point MuJoCo's renderer at ``backend``'s context class in this process."""
+    platform = os.environ.get("PYOPENGL_PLATFORM")
+    if platform and platform.lower() != backend and backend in HEADLESS_BACKENDS:
+        raise GLBackendError(
+            f"PYOPENGL_PLATFORM={platform!r} conflicts with the {backend!r} GL backend; "
+            f"unset it or set it to {backend!r}"
+        )
+    os.environ["MUJOCO_GL"] = backend
+    if backend in HEADLESS_BACKENDS:
+        os.environ["PYOPENGL_PLATFORM"] = backend
+    context_cls = importlib.import_module(f"mujoco.{backend}").GLContext
+    gl_context = importlib.import_module("mujoco.rendering.classic.gl_context")
+    for module in (gl_context, mujoco):
+        setattr(module, "GLContext", context_cls)  # noqa: B010
+
+
+def select_gl_backend() -> str:
+    """Pick (once per process) a working GL backend and make MuJoCo use it.
+
+    Returns the backend's name (``"egl"``, ``"osmesa"``, or what ``MUJOCO_GL`` names).
+    Raises :class:`GLBackendError` naming what to install when none works.
+    """
+    global _selected
+    if _selected is not None:
+        return _selected
+    requested = os.environ.get("MUJOCO_GL", "").strip().lower()
+    if requested:  # the user chose: try it here, no probing of alternatives
+        try:
+            _activate(requested)
+            _try_context()
+        except Exception as err:  # any failure means it cannot render
+            raise GLBackendError(no_backend_message([(requested, str(err))])) from err
+        _selected = requested
+        return requested
+    failures = []
+    for backend in HEADLESS_BACKENDS:
+        reason = _probe_backend(backend)
+        if reason is None:
+            _activate(backend)
+            _selected = backend
+            return backend
+        failures.append((backend, reason))
+    raise GLBackendError(no_backend_message(failures))
+
+
+def no_backend_message(failures: Sequence[tuple[str, str]]) -> str:
+    """The error text when every backend in ``failures`` (name, reason) failed."""
+    tried = "; ".join(f"MUJOCO_GL={name}: {reason}" for name, reason in failures)
+    hints = " or ".join(INSTALL_HINTS.get(name, name) for name, _ in failures)
+    return f"no OpenGL backend can render offscreen here (tried {tried}). Install {hints}."
+
+
+# ------------------------------------------------------------------------------ frames
+def _camera_for(model: mujoco.MjModel, env: Any, camera: str | int | None) -> Any:
+    """The camera id (int) to render from, or a free ``MjvCamera`` as the fallback."""
+    if camera is None:
+        camera = getattr(env, "render_camera", None)
+    if camera is not None:
+        if isinstance(camera, str):
+            cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+            if cam_id < 0:
+                names = [model.camera(i).name for i in range(model.ncam)]
+                raise ValueError(f"unknown camera {camera!r}; the model has {names}")
+            return cam_id
+        if not 0 <= int(camera) < model.ncam:
+            raise ValueError(f"camera index {camera} out of range; the model has {model.ncam}")
+        return int(camera)
+    if model.ncam > 0:
+        return 0
+    free = mujoco.MjvCamera()
+    mujoco.mjv_defaultFreeCamera(model, free)
+    warnings.warn(
+        f"{type(env).__name__}: the model has no camera; rendering from a free camera "
+        "looking at the model's centre",
+        stacklevel=3,
+    )
+    return free
+
+
+class Renderer:
+    """Draws frames of one task's states on the host.
+
+    Args:
+      env: a jaxenvs :class:`~jaxenvs.core.Env` (or a ``BatchedEnv``; its single env is
+        used).
+      width, height: frame size in pixels.
+      camera: camera name or index; see the module docstring for the default.
+    """
+
+    def __init__(
+        self, env: Any, width: int = 640, height: int = 480, camera: str | int | None = None
+    ) -> None:
+        env = getattr(env, "env", env)
+        if width < 1 or height < 1:
+            raise ValueError(f"frame size must be positive, got {width}x{height}")
+        model = copy.deepcopy(env.sim.mj_model)
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, int(width))
+        model.vis.global_.offheight = max(model.vis.global_.offheight, int(height))
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.width, self.height = int(width), int(height)
+        self.camera = _camera_for(model, env, camera)
+        self._renderer: mujoco.Renderer | None = None
+
+    def _gl(self) -> mujoco.Renderer:
+        if self._renderer is None:
+            select_gl_backend()
+            self._renderer = mujoco.Renderer(self.model, self.height, self.width)
+        return self._renderer
+
+    def frame(
+        self,
+        qpos: np.ndarray,
+        mocap_pos: np.ndarray | None = None,
+        mocap_quat: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """One ``(height, width, 3)`` uint8 frame of the pose ``qpos`` (+ mocap poses)."""
+        self.data.qpos[:] = qpos
+        if mocap_pos is not None and self.model.nmocap:
+            self.data.mocap_pos[:] = mocap_pos
+        if mocap_quat is not None and self.model.nmocap:
+            self.data.mocap_quat[:] = mocap_quat
+        mujoco.mj_forward(self.model, self.data)
+        renderer = self._gl()
+        renderer.update_scene(self.data, camera=self.camera)
+        return renderer.render().copy()
+
+    def render_state(self, state: Any) -> np.ndarray:
+        """The frame of one (unbatched) functional-API :class:`~jaxenvs.core.State`."""
+        pose = _host_pose(state, self.model)
+        if pose["qpos"].ndim != 1:
+            raise ValueError(
+                f"render_state takes one env's state; got qpos of shape {pose['qpos'].shape}"
+            )
+        return self.frame(**pose)
+
+    def close(self) -> None:
+        """Free the GL context; safe to call twice."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> Renderer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _host_pose(states: Any, model: mujoco.MjModel) -> dict[str, np.ndarray]:
+    """qpos and mocap poses of a State (or list of States) as host arrays, one transfer each."""
+    if isinstance(states, (list, tuple)):
+        if not states:
+            raise ValueError("no states to render")
+        parts = [_host_pose(s, model) for s in states]
+        return {k: np.stack([p[k] for p in parts]) for k in parts[0]}
+    data = states.data
+    pose = {
+        "qpos": np.asarray(data.qpos, np.float64),
+        "mocap_pos": np.asarray(data.mocap_pos, np.float64),
+        "mocap_quat": np.asarray(data.mocap_quat, np.float64),
+    }
+    if pose["qpos"].shape[-1] != model.nq:
+        raise ValueError(
+            f"states have qpos of size {pose['qpos'].shape[-1]}, the model has nq={model.nq}"
+        )
+    return pose
+
+
+def render_frames(
+    env: Any,
+    states: Any,
+    *,
+    width: int = 640,
+    height: int = 480,
+    camera: str | int | None = None,
+) -> np.ndarray:
+    """Render a trajectory of functional-API states to ``(T, height, width, 3)`` uint8.
+
+    ``states`` is a list of single-env :class:`~jaxenvs.core.State` or one State whose
+    leaves have a leading time axis (what ``jax.lax.scan`` returns). For a batched
+    rollout pick one env first: ``jax.tree.map(lambda x: x[:, i], states)``.
+    """
+    with Renderer(env, width, height, camera) as renderer:
+        pose = _host_pose(states, renderer.model)
+        qpos = pose["qpos"]
+        if qpos.ndim == 1:
+            pose = {k: v[None] for k, v in pose.items()}
+        elif qpos.ndim != 2:
+            raise ValueError(
+                f"expected one env's trajectory (qpos of shape (T, nq)), got {qpos.shape}; "
+                "select one env of a batch with jax.tree.map(lambda x: x[:, i], states)"
+            )
+        frames = [
+            renderer.frame(pose["qpos"][t], pose["mocap_pos"][t], pose["mocap_quat"][t])
+            for t in range(pose["qpos"].shape[0])
+        ]
+    return np.stack(frames)
+
+
+# ------------------------------------------------------------------------------ videos
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def write_video(frames: Any, path: str | os.PathLike[str], fps: float = 30.0) -> Path:
+    """Write ``frames`` (``(T, H, W, 3)`` uint8) to ``path`` (.mp4 via ffmpeg, or .gif).
+
+    The file appears atomically: it is written next to ``path`` under a temporary name and
+    renamed into place, so a reader never sees a half-written video.
+    """
+    import imageio.v2 as imageio
+
+    path = Path(path)
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"unsupported video type {path.suffix!r}; use one of {VIDEO_SUFFIXES}")
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.shape[0] == 0:
+        raise ValueError(f"expected frames of shape (T, H, W, 3) with T > 0, got {frames.shape}")
+    if frames.dtype != np.uint8:
+        raise ValueError(f"expected uint8 frames, got {frames.dtype}")
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps}")
+    if not path.parent.is_dir():
+        raise OSError(f"cannot write {path}: directory {path.parent} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
+    os.close(fd)
+    try:
+        if path.suffix.lower() == ".mp4":
+            kwargs: dict[str, Any] = {"fps": fps, "codec": "libx264", "macro_block_size": 1}
+            kwargs["ffmpeg_log_level"] = "error"
+            kwargs["output_params"] = ["-pix_fmt", "yuv420p"] if _even(frames) else []
+            imageio.mimwrite(tmp, list(frames), format="FFMPEG", **kwargs)
+        else:
+            imageio.mimwrite(tmp, list(frames), format="GIF", duration=1000.0 / fps, loop=0)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _even(frames: np.ndarray) -> bool:
+    """yuv420p (playable everywhere) needs even frame sizes."""
+    return frames.shape[1] % 2 == 0 and frames.shape[2] % 2 == 0
