@@ -2,13 +2,21 @@
 
 An explicit table, filled in one place (``_builtin``) for our own tasks and by
 :func:`register` for users' tasks; nothing registers itself as an import side effect
-elsewhere.
+elsewhere in jaxenvs.
+
+Users' packages register their tasks when imported. Two ways make that happen for code
+that only knows an id (the command line, a run directory's config): an id of the form
+``"module:Id"`` imports ``module`` first (Gymnasium's convention), and an installed
+package can declare its registering module as an entry point of the group
+``jaxenvs.envs`` (loaded once, by :func:`list_envs` and on an unknown id).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import importlib.metadata
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -79,13 +87,51 @@ def _notify_gymnasium(spec: EnvSpec) -> None:
         register_spec(spec)
 
 
+ENTRY_POINT_GROUP = "jaxenvs.envs"
+_plugins_loaded = False
+
+
+def load_plugins() -> None:
+    """Import (once) the modules installed packages declare under ``jaxenvs.envs``.
+
+    A package registers its tasks on import; its ``pyproject.toml`` declares e.g.
+    ``[project.entry-points."jaxenvs.envs"] my_tasks = "my_tasks"``. A plugin that fails
+    to import is reported with a warning and skipped.
+    """
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            entry.load()
+        except Exception as err:  # noqa: BLE001 - one broken plugin must not break jaxenvs
+            warnings.warn(
+                f"jaxenvs plugin {entry.name!r} ({entry.value}) failed to load: {err}",
+                stacklevel=2,
+            )
+
+
 def list_envs() -> list[str]:
-    """All registered env ids, in registration order."""
+    """All registered env ids, in registration order (installed plugins included)."""
+    load_plugins()
     return list(_REGISTRY)
 
 
 def spec(env_id: str) -> EnvSpec:
-    """The :class:`EnvSpec` of ``env_id``; unknown ids raise with the list of valid ones."""
+    """The :class:`EnvSpec` of ``env_id``; unknown ids raise with the list of valid ones.
+
+    ``"module:Id"`` imports ``module`` (which registers ``Id``) and looks up ``Id``.
+    """
+    module, sep, name = env_id.rpartition(":")
+    if sep:
+        try:
+            importlib.import_module(module)
+        except ImportError as err:
+            raise ValueError(f"env id {env_id!r}: cannot import {module!r}: {err}") from err
+        env_id = name
+    if env_id not in _REGISTRY:
+        load_plugins()
     try:
         return _REGISTRY[env_id]
     except KeyError:
