@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import importlib
 import json
 import math
@@ -336,6 +337,21 @@ def _rate_key(metrics: Mapping[str, Any]) -> str | None:
     return None
 
 
+@functools.lru_cache(maxsize=4)
+def _programs(resolved: ResolvedConfig) -> tuple[Env, Trainer, Any, Any, Any]:
+    """Env, trainer and the jitted ``vmap``s of init, chunk and the evaluator.
+
+    Cached per config, so a resume or a second run in the same process (tests, notebooks)
+    reuses the compiled programs.
+    """
+    env, trainer = build(resolved)
+    init_fn = jax.jit(jax.vmap(trainer.init))
+    chunk_fn = jax.jit(jax.vmap(trainer.chunk))
+    evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
+    evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, None)))
+    return env, trainer, init_fn, chunk_fn, evaluate
+
+
 def train(
     resolved: ResolvedConfig,
     out_dir: str | Path,
@@ -363,14 +379,10 @@ def train(
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env, trainer = build(resolved)
+    env, trainer, init_fn, chunk_fn, evaluate = _programs(resolved)
     run = resolved.train
     keys = seed_keys(run.seed, run.num_seeds)
-    init_fn = jax.jit(jax.vmap(trainer.init))
-    chunk_fn = jax.jit(jax.vmap(trainer.chunk))
     params_fn = jax.vmap(trainer.policy_params)
-    evaluator = make_evaluator(env, trainer.act, run.eval_episodes)
-    evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, None)))
     template = jax.eval_shape(init_fn, keys)
     metric_shapes = jax.eval_shape(chunk_fn, template)[1]
     columns = _metric_columns(metric_shapes)
@@ -392,12 +404,12 @@ def train(
         start, wall_before, rows, finished = 0, 0.0, [], False
         top = np.full((run.num_seeds, 0), -1.0, np.float32)
 
-    def save_checkpoint() -> None:
+    def save_checkpoint(state: PyTree, chunk: int, top: np.ndarray, finished: bool) -> None:
         checkpoint.save(
             ckpt_path,
             state,
             {
-                "chunk": done_chunks,
+                "chunk": chunk,
                 "wall_seconds": wall_before + time.perf_counter() - t0,
                 "top_lengths": top.tolist(),
                 "finished": finished,
@@ -408,7 +420,7 @@ def train(
 
     done_chunks = start
     if not resume:
-        save_checkpoint()
+        save_checkpoint(state, done_chunks, top, finished)
     stop = trainer.num_chunks if max_chunks is None else min(trainer.num_chunks, start + max_chunks)
     bar = _Progress(
         trainer.num_chunks * trainer.steps_per_chunk,
@@ -418,33 +430,37 @@ def train(
     )
     interrupted = False
 
+    # Each chunk is a transaction: compute into new_*, write progress.csv and the
+    # checkpoint, then commit. Ctrl-C before the commit leaves the previous chunk's state,
+    # which is exactly what the checkpoint on disk holds.
     try:
         while done_chunks < stop and not finished:
             last = time.perf_counter()
             new_state, metrics = chunk_fn(state)
             metrics = jax.device_get(metrics)
-            state = new_state
-            done_chunks += 1
             now = time.perf_counter()
             eval_mean = math.nan
-            if run.eval_every and done_chunks % run.eval_every == 0:
-                returns, _, _ = evaluate(params_fn(state), eval_key(run.seed))
+            if run.eval_every and (done_chunks + 1) % run.eval_every == 0:
+                returns, _, _ = evaluate(params_fn(new_state), eval_key(run.seed))
                 eval_mean = float(np.mean(returns))
             wall = wall_before + time.perf_counter() - t0
+            new_rows = list(rows)
             for k in range(run.num_seeds):
                 row: dict[str, Any] = {c: _fmt(metrics[c][k]) for c in columns if c in metrics}
-                row.update(chunk=done_chunks - 1, seed=k, wall_seconds=f"{wall:.3f}")
+                row.update(chunk=done_chunks, seed=k, wall_seconds=f"{wall:.3f}")
                 row["eval_return"] = _fmt(eval_mean)
-                rows.append(row)
+                new_rows.append(row)
+            new_top = top
             if "top_lengths" in metrics:
                 both = np.concatenate([top, np.asarray(metrics["top_lengths"], np.float32)], 1)
-                top = -np.sort(-both, axis=1)[:, : min(100, both.shape[1])]
+                new_top = -np.sort(-both, axis=1)[:, : min(100, both.shape[1])]
+            new_finished = done_chunks + 1 >= trainer.num_chunks
             if "active_envs" in metrics and not np.any(np.asarray(metrics["active_envs"]) > 0):
-                finished = True
-            if done_chunks >= trainer.num_chunks:
-                finished = True
-            _write_progress(out / PROGRESS_FILE, columns, rows)
-            save_checkpoint()
+                new_finished = True
+            _write_progress(out / PROGRESS_FILE, columns, new_rows)
+            save_checkpoint(new_state, done_chunks + 1, new_top, new_finished)
+            state, rows, top, finished = new_state, new_rows, new_top, new_finished
+            done_chunks += 1
             rk = _rate_key(metrics)
             postfix = {
                 "ep/s": f"{float(np.sum(metrics['episodes_in_chunk'])) / (now - last):.0f}",
@@ -458,6 +474,7 @@ def train(
             bar.update(trainer.steps_per_chunk, postfix)
     except KeyboardInterrupt:
         interrupted = True
+        _write_progress(out / PROGRESS_FILE, columns, rows)
         say(
             f"interrupted: results and checkpoint are of chunk {done_chunks}; resume with "
             f"--resume {out}"
