@@ -1,0 +1,221 @@
+"""PPO: hand-computed GAE and loss values, distributions, running statistics, configs, and
+a short CartPole-v0 run that must improve."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxenvs
+from jaxenvs.agents import losses, ppo
+from jaxenvs.agents.base import CHUNK_METRICS, make_train
+from jaxenvs.agents.networks import (
+    ActorCritic,
+    categorical_entropy,
+    categorical_log_prob,
+    gaussian_entropy,
+    gaussian_log_prob,
+)
+from jaxenvs.config import ConfigError, apply_overrides
+
+GAMMA, LAM = 0.9, 0.8
+REWARDS = jnp.array([1.0, 2.0, 3.0])
+VALUES = jnp.array([0.5, 1.0, 1.5])
+NEXT_VALUES = jnp.array([1.0, 1.5, 2.0])  # no episode end: next_values[t] = values[t + 1]
+
+
+def _gae(next_values=NEXT_VALUES, terminated=(0, 0, 0), done=(0, 0, 0)):  # type: ignore[no-untyped-def]
+    return losses.gae(
+        REWARDS, VALUES, next_values, jnp.array(terminated), jnp.array(done), GAMMA, LAM
+    )
+
+
+# ----------------------------------------------------------------------------- GAE
+def test_gae_without_episode_end():
+    # deltas: 1 + .9*1 - .5 = 1.4; 2 + .9*1.5 - 1 = 2.35; 3 + .9*2 - 1.5 = 3.3
+    # A2 = 3.3; A1 = 2.35 + .72*3.3 = 4.726; A0 = 1.4 + .72*4.726 = 4.80272
+    adv, ret = _gae()
+    np.testing.assert_allclose(adv, [4.80272, 4.726, 3.3], rtol=1e-6)
+    np.testing.assert_allclose(ret, np.array([4.80272, 4.726, 3.3]) + VALUES, rtol=1e-6)
+
+
+def test_gae_bootstraps_on_truncation_from_the_final_observation():
+    # step 1 is truncated; the value of its final_obs is 5.0 (not values[2] = 1.5):
+    # delta1 = 2 + .9*5 - 1 = 5.5, and the trace stops: A1 = 5.5; A0 = 1.4 + .72*5.5 = 5.36
+    adv, _ = _gae(next_values=jnp.array([1.0, 5.0, 2.0]), done=(0, 1, 0))
+    np.testing.assert_allclose(adv, [5.36, 5.5, 3.3], rtol=1e-6)
+
+
+def test_gae_does_not_bootstrap_on_termination():
+    # step 1 terminates: delta1 = 2 - 1 = 1, A1 = 1; A0 = 1.4 + .72*1 = 2.12
+    adv, _ = _gae(next_values=jnp.array([1.0, 5.0, 2.0]), terminated=(0, 1, 0), done=(0, 1, 0))
+    np.testing.assert_allclose(adv, [2.12, 1.0, 3.3], rtol=1e-6)
+
+
+def test_gae_batched_envs_are_independent():
+    rewards = jnp.stack([REWARDS, 2 * REWARDS], axis=1)  # (T, 2 envs)
+    values = jnp.stack([VALUES, VALUES], axis=1)
+    nv = jnp.stack([NEXT_VALUES, NEXT_VALUES], axis=1)
+    zeros = jnp.zeros((3, 2))
+    adv, _ = losses.gae(rewards, values, nv, zeros, zeros, GAMMA, LAM)
+    np.testing.assert_allclose(adv[:, 0], _gae()[0], rtol=1e-6)
+    single, _ = losses.gae(2 * REWARDS, VALUES, NEXT_VALUES, zeros[:, 0], zeros[:, 0], GAMMA, LAM)
+    np.testing.assert_allclose(adv[:, 1], single, rtol=1e-6)
+
+
+# -------------------------------------------------------------------------- losses
+def test_policy_loss_clips_the_ratio_pessimistically():
+    # ratios 1.5, 0.5, 1.0 with advantages 1, 1, -2 and clip 0.2:
+    # min(r A, clip(r) A) = min(1.5, 1.2), min(0.5, 0.8), -2 -> 1.2, 0.5, -2; mean -0.1
+    log_prob = jnp.log(jnp.array([1.5, 0.5, 1.0]))
+    loss = losses.policy_loss(log_prob, jnp.zeros(3), jnp.array([1.0, 1.0, -2.0]), 0.2)
+    assert float(loss) == pytest.approx(0.1, abs=1e-6)
+
+
+def test_value_loss_plain_and_clipped():
+    values, old, returns = jnp.array([1.0, 3.0]), jnp.zeros(2), jnp.array([2.0, 2.0])
+    assert float(losses.value_loss(values, old, returns, None)) == pytest.approx(0.5)
+    # clipped values 0.5, 0.5 -> errors 2.25, 2.25 dominate the plain 1, 1
+    assert float(losses.value_loss(values, old, returns, 0.5)) == pytest.approx(1.125)
+
+
+def test_approx_kl_is_zero_for_equal_policies_and_positive_otherwise():
+    lp = jnp.array([-0.1, -2.0, -0.7])
+    assert float(losses.approx_kl(lp, lp)) == pytest.approx(0.0, abs=1e-7)
+    assert float(losses.approx_kl(lp + jnp.array([0.3, -0.2, 0.1]), lp)) > 0.0
+
+
+def test_normalize_advantages():
+    a = losses.normalize_advantages(jnp.array([1.0, 2.0, 3.0, 6.0]))
+    assert float(a.mean()) == pytest.approx(0.0, abs=1e-6)
+    assert float(a.std()) == pytest.approx(1.0, abs=1e-6)
+
+
+# ------------------------------------------------------------------- distributions
+def test_categorical_log_prob_and_entropy():
+    logits = jnp.array([0.0, math.log(3.0)])  # probabilities 0.25, 0.75
+    assert float(categorical_log_prob(logits, jnp.array(1))) == pytest.approx(math.log(0.75))
+    expected = -(0.25 * math.log(0.25) + 0.75 * math.log(0.75))
+    assert float(categorical_entropy(logits)) == pytest.approx(expected, rel=1e-6)
+
+
+def test_gaussian_log_prob_and_entropy():
+    mean, log_std = jnp.zeros(2), jnp.array([0.0, math.log(2.0)])
+    # dim 0: N(1; 0, 1); dim 1: N(2; 0, 4) -> both -0.5 - log(std) - 0.5 log(2 pi)
+    lp = gaussian_log_prob(mean, log_std, jnp.array([1.0, 2.0]))
+    expected = 2 * (-0.5 - 0.5 * math.log(2 * math.pi)) - math.log(2.0)
+    assert float(lp) == pytest.approx(expected, rel=1e-6)
+    ent = 2 * 0.5 * math.log(2 * math.pi * math.e) + math.log(2.0)
+    assert float(gaussian_entropy(log_std)) == pytest.approx(ent, rel=1e-6)
+
+
+def test_actor_critic_heads_and_initial_policy():
+    obs = jnp.ones((7, 3))
+    disc = ActorCritic(action_size=4, discrete=True)
+    logits, value = disc.apply(disc.init(jax.random.key(0), obs[0]), obs)
+    assert logits.shape == (7, 4) and value.shape == (7,)
+    # output gain 0.01: the first policy is close to uniform
+    assert float(jnp.abs(logits).max()) < 0.1
+    cont = ActorCritic(action_size=2, discrete=False, log_std_init=-0.5)
+    params = cont.init(jax.random.key(0), obs[0])
+    (mean, log_std), value = cont.apply(params, obs)
+    assert mean.shape == (7, 2) and value.shape == (7,)
+    np.testing.assert_allclose(log_std, -0.5)
+
+
+# ------------------------------------------------------------------ running stats
+def test_running_stats_match_the_whole_stream():
+    data = jax.random.normal(jax.random.key(1), (300, 3)) * jnp.array([1.0, 5.0, 0.1]) + 2.0
+    stats = ppo.stats_init((3,))
+    for batch in jnp.split(data, 6):
+        stats = ppo.stats_update(stats, batch)
+    np.testing.assert_allclose(stats.mean, data.mean(0), rtol=1e-4)
+    np.testing.assert_allclose(stats.var, data.var(0), rtol=1e-3)
+    z = ppo.normalize(stats, data, clip=10.0)
+    np.testing.assert_allclose(z.mean(0), 0.0, atol=1e-3)
+
+
+# ------------------------------------------------------------------------ configs
+def test_config_validation_names_the_key():
+    with pytest.raises(ConfigError, match="num_minibatches"):
+        apply_overrides(ppo.PPOConfig(), {"num_envs": 3, "num_steps": 5}, "test")
+    with pytest.raises(ConfigError, match="gamma"):
+        apply_overrides(ppo.PPOConfig(), {"gamma": 1.5}, "test")
+
+
+def test_shipped_configs_resolve():
+    from jaxenvs.agents import runner
+
+    found = 0
+    for env_id in jaxenvs.list_envs():
+        path = runner.shipped_config("ppo", env_id)
+        if path is None:
+            continue
+        resolved = runner.resolve_config(env_id, "ppo")
+        assert isinstance(resolved.agent, ppo.PPOConfig)
+        assert resolved.agent.num_chunks >= 1
+        found += 1
+    assert found >= 5  # the cartpole family and the reacher at least
+
+
+# ------------------------------------------------------------------- training runs
+CARTPOLE = ppo.PPOConfig(
+    total_steps=4 * 4096,
+    num_envs=16,
+    num_steps=64,
+    updates_per_chunk=4,
+    learning_rate=1e-3,
+    clip_value=False,
+    normalize_obs=False,
+    normalize_rewards=True,
+)
+
+
+@pytest.fixture(scope="module")
+def cartpole_run():
+    env = jaxenvs.make("CartPole-v0")
+    trainer = ppo.make_trainer(env, CARTPOLE)
+    keys = jax.random.split(jax.random.key(0), 2)
+    final, metrics = jax.jit(jax.vmap(make_train(trainer)))(keys)  # one program, 2 seeds
+    return env, trainer, final, jax.device_get(metrics)
+
+
+def test_short_cartpole_run_improves(cartpole_run):
+    _, trainer, _, metrics = cartpole_run
+    assert set(CHUNK_METRICS) <= set(metrics)
+    ret = np.asarray(metrics["mean_return"])  # (seeds, chunks)
+    assert ret.shape == (2, trainer.num_chunks)
+    assert np.all(np.isfinite(ret))
+    # random play lasts ~22 steps; after 16k steps both seeds do far better
+    assert np.all(ret[:, -1] > 2 * ret[:, 0]), ret
+    assert np.all(ret[:, -1] > 60), ret
+    np.testing.assert_array_equal(metrics["env_steps"][:, -1], CARTPOLE.total_steps)
+
+
+def test_greedy_policy_acts_in_the_action_space(cartpole_run):
+    env, trainer, final, _ = cartpole_run
+    params = jax.tree.map(lambda x: x[0], trainer.policy_params(final))
+    obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(3), 5)).obs
+    act = jax.vmap(trainer.act, in_axes=(None, 0, None))(params, obs, jax.random.key(0))
+    assert act.shape == (5,) and act.dtype == jnp.int32
+    assert bool(jnp.all((act >= 0) & (act < env.action_size)))
+
+
+def test_continuous_task_chunk_runs():
+    env = jaxenvs.make("CartpoleBalance-v0", episode_length=50)
+    config = dataclasses.replace(
+        CARTPOLE, total_steps=8 * 16, num_envs=8, num_steps=16, updates_per_chunk=1
+    )
+    trainer = ppo.make_trainer(env, config)
+    state = trainer.init(jax.random.key(0))
+    state, metrics = jax.jit(trainer.chunk)(state)
+    assert int(metrics["env_steps"]) == 128
+    for key in ("loss", "entropy", "approx_kl"):
+        assert np.isfinite(float(metrics[key])), key
+    action = trainer.act(trainer.policy_params(state), state.env_state.obs[0], jax.random.key(1))
+    assert action.shape == (1,) and float(jnp.abs(action).max()) <= 1.0
