@@ -296,6 +296,16 @@ def render_frames(
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
+def check_video_path(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a Path if a video can be written there, else ValueError/OSError."""
+    path = Path(path)
+    if path.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"unsupported video type {path.suffix!r}; use one of {VIDEO_SUFFIXES}")
+    if not path.parent.is_dir():
+        raise OSError(f"cannot write {path}: directory {path.parent} does not exist")
+    return path
+
+
 def write_video(frames: Any, path: str | os.PathLike[str], fps: float = 30.0) -> Path:
     """Write ``frames`` (``(T, H, W, 3)`` uint8) to ``path`` (.mp4 via ffmpeg, or .gif).
 
@@ -304,9 +314,7 @@ def write_video(frames: Any, path: str | os.PathLike[str], fps: float = 30.0) ->
     """
     import imageio.v2 as imageio
 
-    path = Path(path)
-    if path.suffix.lower() not in VIDEO_SUFFIXES:
-        raise ValueError(f"unsupported video type {path.suffix!r}; use one of {VIDEO_SUFFIXES}")
+    path = check_video_path(path)
     frames = np.asarray(frames)
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.shape[0] == 0:
         raise ValueError(f"expected frames of shape (T, H, W, 3) with T > 0, got {frames.shape}")
@@ -314,23 +322,29 @@ def write_video(frames: Any, path: str | os.PathLike[str], fps: float = 30.0) ->
         raise ValueError(f"expected uint8 frames, got {frames.dtype}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
-    if not path.parent.is_dir():
-        raise OSError(f"cannot write {path}: directory {path.parent} does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     try:
-        if path.suffix.lower() == ".mp4":
-            kwargs: dict[str, Any] = {"fps": fps, "codec": "libx264", "macro_block_size": 1}
-            kwargs["ffmpeg_log_level"] = "error"
-            kwargs["output_params"] = ["-pix_fmt", "yuv420p"] if _even(frames) else []
-            imageio.mimwrite(tmp, list(frames), format="FFMPEG", **kwargs)
-        else:
-            imageio.mimwrite(tmp, list(frames), format="GIF", duration=1000.0 / fps, loop=0)
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would make the video private
+        with warnings.catch_warnings():
+            # JAX's notice about fork(); imageio-ffmpeg forks only to exec ffmpeg.
+            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+            _mimwrite(imageio, tmp, frames, path.suffix.lower(), fps)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def _mimwrite(imageio: Any, tmp: str, frames: np.ndarray, suffix: str, fps: float) -> None:
+    if suffix == ".mp4":
+        kwargs: dict[str, Any] = {"fps": fps, "codec": "libx264", "macro_block_size": 1}
+        kwargs["ffmpeg_log_level"] = "error"
+        kwargs["output_params"] = ["-pix_fmt", "yuv420p"] if _even(frames) else []
+        imageio.mimwrite(tmp, list(frames), format="FFMPEG", **kwargs)
+    else:
+        imageio.mimwrite(tmp, list(frames), format="GIF", duration=1000.0 / fps, loop=0)
 
 
 def _even(frames: np.ndarray) -> bool:

@@ -1,0 +1,104 @@
+"""``jaxenvs render``: a video of one env, with random actions or a trained policy.
+
+``jaxenvs render CartpoleSwingup-v0 --out swingup.mp4 --steps 300`` rolls out one env of a
+batched (auto-resetting) env in a single jitted scan, then renders that trajectory
+headlessly with :mod:`jaxenvs.render` and writes the video atomically. ``--policy RUN_DIR``
+acts with the greedy policy of a run written by ``jaxenvs train`` (through
+``jaxenvs.agents.runner.load_policy``) on the run's own env config.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+HELP = "render a video of an env with random actions or a trained policy (--policy RUN_DIR)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("env_id", metavar="ID", help="registered env id (see `jaxenvs list`)")
+    parser.add_argument("--out", required=True, help="output video (.mp4 or .gif)")
+    parser.add_argument("--policy", metavar="RUN_DIR", help="act with this training run")
+    parser.add_argument("--steps", type=int, default=300, help="control steps (default 300)")
+    parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
+    parser.add_argument("--width", type=int, default=640, help="frame width (default 640)")
+    parser.add_argument("--height", type=int, default=480, help="frame height (default 480)")
+    parser.add_argument("--camera", help="camera name or index (default: the task's)")
+    parser.add_argument("--fps", type=float, help="video frame rate (default: real time)")
+
+
+ActFn = Callable[[Any, Any], Any]
+
+
+def _policy(run_dir: str, env_id: str) -> tuple[Any, ActFn]:
+    """The run's env and greedy ``act_fn(obs, key)``; the run must be of ``env_id``."""
+    try:
+        from jaxenvs.agents import runner
+    except ImportError as err:
+        raise ValueError(f"--policy needs jaxenvs.agents.runner, which failed: {err}") from err
+    loaded = runner.load_policy(run_dir)
+    run_env_id, env, act_fn = loaded if len(loaded) == 3 else (loaded[0], None, loaded[-1])
+    if run_env_id != env_id:
+        raise ValueError(f"{run_dir} is a run of {run_env_id}, not {env_id}")
+    return env, act_fn
+
+
+def _random_act(env: Any) -> ActFn:
+    import jax
+
+    def act(obs: Any, key: Any) -> Any:
+        del obs
+        if env.discrete:
+            return jax.random.randint(key, (), 0, env.action_size)
+        return jax.random.uniform(key, (env.action_size,), minval=-1.0, maxval=1.0)
+
+    return act
+
+
+def rollout(env: Any, act_fn: ActFn, steps: int, seed: int) -> Any:
+    """States (leading time axis, reset state first) of one auto-resetting env."""
+    import jax
+
+    from jaxenvs.core import BatchedEnv
+
+    benv = BatchedEnv(env, 1)
+
+    def run(key: jax.Array) -> Any:
+        reset_key, act_key = jax.random.split(key)
+        first = benv.reset(reset_key)
+
+        def body(state: Any, k: jax.Array) -> tuple[Any, Any]:
+            action = jax.vmap(act_fn)(state.obs, k[None])
+            state = benv.step(state, action)
+            return state, state
+
+        _, states = jax.lax.scan(body, first, jax.random.split(act_key, steps))
+        both = jax.tree.map(lambda a, b: jax.numpy.concatenate([a[None], b]), first, states)
+        return jax.tree.map(lambda x: x[:, 0], both)
+
+    return jax.jit(run)(jax.random.key(seed))
+
+
+def run(args: argparse.Namespace) -> int:
+    import jaxenvs
+    from jaxenvs import render
+
+    if args.steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    render.check_video_path(args.out)
+    camera = int(args.camera) if args.camera is not None and args.camera.isdigit() else args.camera
+    env = jaxenvs.make(args.env_id)
+    if args.policy:
+        run_env, act_fn = _policy(args.policy, args.env_id)
+        env = run_env or env
+    else:
+        act_fn = _random_act(env)
+    render.Renderer(env, args.width, args.height, camera).close()  # bad camera/size: fail now
+    render.select_gl_backend()  # fail before the rollout when nothing can render
+    states = rollout(env, act_fn, args.steps, args.seed)
+    frames = render.render_frames(env, states, width=args.width, height=args.height, camera=camera)
+    fps = args.fps if args.fps is not None else 1.0 / env.control_dt
+    path = render.write_video(frames, args.out, fps=fps)
+    print(f"wrote {path} ({len(frames)} frames, {fps:g} fps)")
+    return 0

@@ -1,0 +1,200 @@
+"""Headless rendering: backend selection, frames from functional-API states, videos, CLI."""
+
+from __future__ import annotations
+
+import types
+
+import imageio.v2 as imageio
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import jaxenvs
+from jaxenvs import render
+from jaxenvs.cli import main
+
+W, H = 64, 48
+
+
+@pytest.fixture(scope="module")
+def env():
+    return jaxenvs.make("CartpoleSwingup-v0")
+
+
+@pytest.fixture(scope="module")
+def trajectory(env):
+    """A stacked 12-step trajectory (reset state first) from a jitted scan."""
+
+    @jax.jit
+    def run(key):
+        first = env.reset(key)
+
+        def body(s, _):
+            s = env.step(s, jnp.ones((1,)))
+            return s, s
+
+        _, states = jax.lax.scan(body, first, None, length=11)
+        return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, states)
+
+    return run(jax.random.key(0))
+
+
+def test_backend_is_selected_and_renders():
+    backend = render.select_gl_backend()
+    assert backend in ("egl", "osmesa", "glfw", "glx")
+    assert render.select_gl_backend() == backend  # cached
+
+
+def test_no_backend_error_names_packages(monkeypatch):
+    monkeypatch.setattr(render, "_selected", None)
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.setattr(render, "_probe_backend", lambda name: f"{name} library not found")
+    with pytest.raises(render.GLBackendError) as err:
+        render.select_gl_backend()
+    msg = str(err.value)
+    assert "MUJOCO_GL=egl: egl library not found" in msg
+    assert "libegl1" in msg and "libosmesa6" in msg
+    assert isinstance(err.value, OSError)  # the CLI prints it as one line
+
+
+def test_requested_backend_failure_names_package(monkeypatch):
+    monkeypatch.setattr(render, "_selected", None)
+    monkeypatch.setenv("MUJOCO_GL", "osmesa")
+    monkeypatch.setattr(render, "_activate", lambda name: None)
+
+    def broken() -> None:
+        raise RuntimeError("OSMesa library not found")
+
+    monkeypatch.setattr(render, "_try_context", broken)
+    with pytest.raises(render.GLBackendError, match="libosmesa6"):
+        render.select_gl_backend()
+
+
+def test_render_frames_of_stacked_trajectory(env, trajectory):
+    frames = render.render_frames(env, trajectory, width=W, height=H)
+    assert frames.shape == (12, H, W, 3) and frames.dtype == np.uint8
+    assert frames.std() > 0  # not a blank image
+    # the pole swings, so the first and last frames differ
+    assert np.abs(frames[0].astype(int) - frames[-1].astype(int)).sum() > 0
+
+
+def test_list_of_states_matches_stacked(env, trajectory):
+    states = [jax.tree.map(lambda x, t=t: x[t], trajectory) for t in (0, 5, 11)]
+    frames = render.render_frames(env, states, width=W, height=H)
+    stacked = render.render_frames(env, trajectory, width=W, height=H)
+    np.testing.assert_array_equal(frames, stacked[np.array([0, 5, 11])])
+
+
+def test_one_env_of_a_batched_rollout():
+    benv = jaxenvs.make("CartpoleBalance-v0", num_envs=3)
+    step = jax.jit(benv.step)
+    states = [benv.reset(jax.random.key(1))]
+    for _ in range(3):
+        states.append(step(states[-1], jnp.ones((3, 1))))
+    batched = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
+    with pytest.raises(ValueError, match="select one env"):
+        render.render_frames(benv, batched, width=W, height=H)
+    one = jax.tree.map(lambda x: x[:, 2], batched)
+    frames = render.render_frames(benv, one, width=W, height=H)
+    assert frames.shape == (4, H, W, 3)
+
+
+def test_cameras(env, trajectory):
+    last = jax.tree.map(lambda x: x[-1], trajectory)
+    side = render.render_frames(env, last, width=W, height=H)
+    fixed = render.render_frames(env, last, width=W, height=H, camera="fixed")
+    assert side.shape == fixed.shape == (1, H, W, 3)
+    assert not np.array_equal(side, fixed)
+    with pytest.raises(ValueError, match="'side', 'fixed'"):
+        render.Renderer(env, W, H, camera="nope")
+    with pytest.raises(ValueError, match="out of range"):
+        render.Renderer(env, W, H, camera=5)
+
+
+def test_model_without_camera_uses_free_camera():
+    model = mujoco.MjModel.from_xml_string(
+        "<mujoco><worldbody><light pos='0 0 3'/><body><freejoint/>"
+        "<geom type='box' size='.2 .2 .2' rgba='1 0 0 1'/></body></worldbody></mujoco>"
+    )
+    fake = types.SimpleNamespace(sim=types.SimpleNamespace(mj_model=model))
+    with pytest.warns(UserWarning, match="free camera"):
+        renderer = render.Renderer(fake, W, H)
+    with renderer:
+        frame = renderer.frame(model.qpos0)
+    red = (frame[..., 0] > 100) & (frame[..., 1] < 60)
+    assert red.any()  # the free camera looks at the box
+
+
+def test_frames_larger_than_model_buffer(env, trajectory):
+    first = jax.tree.map(lambda x: x[0], trajectory)
+    frames = render.render_frames(env, first, width=800, height=600)
+    assert frames.shape == (1, 600, 800, 3)
+
+
+def test_write_video_mp4_and_gif(tmp_path, env, trajectory):
+    frames = render.render_frames(env, trajectory, width=W, height=H)
+    mp4 = render.write_video(frames, tmp_path / "a.mp4", fps=25)
+    back = np.stack(imageio.mimread(mp4))
+    assert back.shape == frames.shape
+    assert np.abs(back.astype(int) - frames.astype(int)).mean() < 12  # lossy codec
+    gif = render.write_video(frames, tmp_path / "a.gif", fps=25)
+    assert len(imageio.mimread(gif)) == len(frames)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.gif", "a.mp4"]
+
+
+def test_write_video_is_atomic(tmp_path, monkeypatch):
+    target = tmp_path / "v.mp4"
+    target.write_bytes(b"old video")
+
+    def fail(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(render, "_mimwrite", fail)
+    frames = np.zeros((2, 8, 8, 3), np.uint8)
+    with pytest.raises(OSError, match="disk full"):
+        render.write_video(frames, target, fps=10)
+    assert target.read_bytes() == b"old video"
+    assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]
+
+
+@pytest.mark.parametrize(
+    "frames, path, fps, match",
+    [
+        (np.zeros((2, 8, 8, 3), np.uint8), "x.avi", 10, "unsupported video type"),
+        (np.zeros((2, 8, 8), np.uint8), "x.mp4", 10, "shape"),
+        (np.zeros((2, 8, 8, 3), np.float32), "x.mp4", 10, "uint8"),
+        (np.zeros((2, 8, 8, 3), np.uint8), "x.mp4", 0, "fps"),
+    ],
+)
+def test_write_video_rejects_bad_input(tmp_path, frames, path, fps, match):
+    with pytest.raises(ValueError, match=match):
+        render.write_video(frames, tmp_path / path, fps=fps)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_render_random_actions(tmp_path, capsys):
+    out = tmp_path / "cp.mp4"
+    argv = ["render", "CartPole-v0", "--out", str(out), "--steps", "15"]
+    assert main([*argv, "--width", str(W), "--height", str(H), "--seed", "3"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    frames = imageio.mimread(out)
+    assert len(frames) == 16 and frames[0].shape == (H, W, 3)
+
+
+@pytest.mark.parametrize(
+    "extra, match",
+    [
+        (["--out", "/nonexistent-dir/x.mp4"], "does not exist"),
+        (["--out", "x.webm"], "unsupported video type"),
+        (["--out", "x.mp4", "--camera", "nope"], "unknown camera"),
+        (["--out", "x.mp4", "--policy", "/nonexistent-run"], "nonexistent-run"),
+    ],
+)
+def test_cli_render_user_errors(tmp_path, monkeypatch, capsys, extra, match):
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", "CartPole-v0", "--steps", "2", *extra]) == 2
+    err = capsys.readouterr().err
+    assert match in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
