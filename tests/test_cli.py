@@ -1,0 +1,160 @@
+"""``jaxenvs train`` / ``eval`` / ``compare`` and config files: errors name key and file."""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+
+import pytest
+import yaml
+from tabular_fakes import fake_envs
+
+from jaxenvs import cli
+from jaxenvs.agents import runner
+from jaxenvs.config import ConfigError
+
+CHAIN_AGENT = {
+    "alpha": 0.5,
+    "gamma": 0.9,
+    "epsilon_discount": 0.95,
+    "number_splits": 7,
+    "obs_low": [0.0],
+    "obs_high": [7.0],
+    "num_envs": 2,
+    "chunk_steps": 30,
+    "total_steps": 300,
+}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _fakes():
+    with fake_envs():
+        yield
+
+
+def _write(path, data):
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+def _chain_file(tmp_path, algo="sarsa", **agent):
+    return _write(
+        tmp_path / f"chain_{algo}.yaml",
+        {
+            "algo": algo,
+            "env": {"id": "Test-Chain-v0", "episode_length": 12, "length": 3},
+            "agent": {**CHAIN_AGENT, **agent},
+            "train": {"eval_episodes": 3, "video": False},
+        },
+    )
+
+
+@pytest.mark.parametrize(
+    "section, entry, key",
+    [
+        ("agent", {"alphaa": 0.1}, "alphaa"),  # unknown key
+        ("agent", {"alpha": "fast"}, "alpha"),  # wrong type
+        ("agent", {"alpha": -0.5}, "alpha"),  # impossible value
+        ("agent", {"number_splits": 0}, "number_splits"),
+        ("env", {"forse": 3.0}, "forse"),
+        ("train", {"num_seeds": 0}, "num_seeds"),
+    ],
+)
+def test_bad_config_names_key_and_file(tmp_path, capsys, section, entry, key):
+    data = yaml.safe_load(
+        resources.files("jaxenvs.configs").joinpath("cartpole_qlearn.yaml").read_text()
+    )
+    data[section].update(entry)
+    path = _write(tmp_path / "bad.yaml", data)
+    code = cli.main(["train", "CartPole-v0", "--config", path, "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert key in err and path in err, err
+    assert not (tmp_path / "r").exists()
+
+
+def test_unknown_section_and_unsafe_yaml_are_refused(tmp_path):
+    path = _write(tmp_path / "s.yaml", {"agents": {"alpha": 0.1}})
+    with pytest.raises(ConfigError, match="agents"):
+        runner.resolve_config("CartPole-v0", "qlearning", path)
+    unsafe = tmp_path / "unsafe.yaml"
+    unsafe.write_text("agent: !!python/object/apply:os.system ['echo hi']\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        runner.resolve_config("CartPole-v0", "qlearning", unsafe)
+
+
+def test_command_line_overrides_file(tmp_path):
+    path = _chain_file(tmp_path)
+    resolved = runner.resolve_config(
+        None, None, path, {"num_envs": 5, "total_steps": None}, {"seed": 9}
+    )
+    assert resolved.algo == "sarsa" and resolved.env_id == "Test-Chain-v0"
+    assert resolved.agent.num_envs == 5 and resolved.agent.total_steps == 300
+    assert resolved.train.seed == 9 and resolved.env.episode_length == 12
+    with pytest.raises(ConfigError, match="not 'CartPole-v0'"):
+        runner.resolve_config("CartPole-v0", None, path)
+
+
+def test_shipped_configs_resolve():
+    files = resources.files("jaxenvs.configs")
+    names = sorted(p.name for p in files.iterdir() if p.name.endswith(".yaml"))
+    assert {"cartpole_qlearn.yaml", "cartpole_sarsa.yaml", "cartpole_stayup_qlearn.yaml"} <= set(
+        names
+    )
+    for name in names:
+        with resources.as_file(files.joinpath(name)) as path:
+            resolved = runner.resolve_config(None, None, path)
+        assert resolved.algo in runner.ALGORITHMS
+    with resources.as_file(files.joinpath("cartpole_stayup_qlearn.yaml")) as path:
+        course = runner.resolve_config(None, None, path)
+    env, agent = course.env, course.agent
+    assert (env.n_actions, env.running_step, env.pos_step) == (4, 0.04, 0.016)
+    assert (env.min_pole_angle, env.max_pole_angle) == (-0.7, 0.7)
+    assert (env.min_base_pose_x, env.max_base_pose_x, env.episode_length) == (-2.5, 2.5, 1000)
+    assert (agent.alpha, agent.gamma, agent.epsilon, agent.epsilon_discount) == (
+        0.5,
+        0.9,
+        0.1,
+        0.999,
+    )
+    assert (agent.number_splits, agent.episodes_per_env, agent.num_envs) == (10, 1000, 1)
+
+
+def test_missing_algorithm_module_is_reported(monkeypatch):
+    monkeypatch.setitem(
+        runner.ALGORITHMS, "ppo", runner.AlgoEntry("jaxenvs.agents.no_such_module", "X")
+    )
+    with pytest.raises(ConfigError, match="not available yet"):
+        runner.resolve_config("CartPole-v0", "ppo")
+
+
+def test_train_eval_compare(tmp_path, capsys):
+    runs = []
+    for algo in ("qlearning", "sarsa"):
+        out = tmp_path / algo
+        code = cli.main(
+            ["train", "--config", _chain_file(tmp_path, algo), "--out", str(out), "--quiet"]
+        )
+        assert code == 0, capsys.readouterr().err
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["algo"] == algo and summary["eval_mean_return"] == 1.0
+        saved = yaml.safe_load((out / "config.yaml").read_text())
+        assert saved["algo"] == algo and saved["agent"]["alpha"] == 0.5
+        assert saved["env"]["divergence_bound"] == 1e4  # every field, defaults included
+        runs.append(str(out))
+    capsys.readouterr()
+    assert cli.main(["eval", runs[0], "--episodes", "4", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["episodes"] == 4 and result["mean_return"] == 1.0
+    plot = tmp_path / "cmp.png"
+    assert cli.main(["compare", *runs, "--out", str(plot)]) == 0
+    assert plot.stat().st_size > 1000
+    text = capsys.readouterr().out
+    assert runs[0] in text and runs[1] in text
+    # a second train into the same directory is refused; --resume with flags too
+    assert cli.main(["train", "--config", _chain_file(tmp_path), "--out", runs[0]]) == 2
+    assert cli.main(["train", "--resume", runs[0], "--seed", "3"]) == 2
+    assert "--seed" in capsys.readouterr().err
+    # resuming a finished run re-evaluates and keeps the result
+    assert cli.main(["train", "--resume", runs[0], "--quiet"]) == 0
+    assert json.loads((tmp_path / "qlearning" / "summary.json").read_text())["chunks"] == 5
