@@ -14,6 +14,11 @@ No contacts, no constraints, Euler integration: episodes end on bounds, not on l
 
 Params (the randomisable physics, a pytree passed to reset/step): ``model`` holds MJX
 model fields ``body_mass``, ``body_inertia``, ``dof_damping`` and ``actuator_gear``.
+``sample_params`` (used by ``make(..., num_envs=N, randomize=True)`` at each env's every
+reset) draws them from every cartpole config's randomisation ranges: cart and pole mass
+and inertia scaled together by ``mass_scale`` (one factor per body), slider and hinge
+damping plus an offset uniform in ``damping_range`` (their default is 0), the motor's gear
+scaled by ``gain_scale``. No friction: the cartpole has no contacts.
 """
 
 from __future__ import annotations
@@ -26,8 +31,10 @@ import jax.numpy as jnp
 from flax import struct
 from mujoco import mjx
 
+from jaxenvs import randomize
 from jaxenvs.config import require
 from jaxenvs.core import Env, TaskConfig
+from jaxenvs.randomize import Range
 from jaxenvs.robots import robot_xml
 from jaxenvs.sim import Sim
 from jaxenvs.tasks.rewards import tolerance
@@ -53,9 +60,47 @@ def _default_params(sim: Sim, force: float | None = None) -> CartpoleParams:
     return CartpoleParams(model=fields)
 
 
+@dataclasses.dataclass(frozen=True)
+class CartpoleRandomization(TaskConfig):
+    """Domain-randomisation ranges shared by every cartpole config (used only with
+    ``randomize=True``; see the module docstring).
+
+    Attributes:
+      mass_scale: factor on the cart's and the pole's mass and inertia.
+      damping_range: offset added to the slider's (N s/m) and hinge's (N m s/rad) damping.
+      gain_scale: factor on the motor's gear (force per unit command).
+    """
+
+    mass_scale: Range = (0.8, 1.2)
+    damping_range: Range = (0.0, 0.01)
+    gain_scale: Range = (0.9, 1.1)
+
+    def validate(self) -> None:
+        super().validate()
+        randomize.check_range("mass_scale", self.mass_scale, positive=True)
+        randomize.check_range("damping_range", self.damping_range, min_low=0.0)
+        randomize.check_range("gain_scale", self.gain_scale, positive=True)
+
+
+def sample_cartpole_params(
+    key: jax.Array, base: CartpoleParams, config: CartpoleRandomization
+) -> CartpoleParams:
+    """Params drawn from ``config``'s ranges around ``base`` (the task's default params)."""
+    mass_key, damping_key, gain_key = jax.random.split(key, 3)
+    fields = dict(base.model)
+    fields["body_mass"], fields["body_inertia"] = randomize.scale_mass(
+        mass_key, fields["body_mass"], fields["body_inertia"], config.mass_scale
+    )
+    fields["dof_damping"] = randomize.offset(
+        damping_key, fields["dof_damping"], config.damping_range
+    )
+    fields["actuator_gear"] = randomize.scale(gain_key, fields["actuator_gear"], config.gain_scale)
+    return CartpoleParams(model=fields)
+
+
 # --------------------------------------------------------------------------- CartPole-v0
 @dataclasses.dataclass(frozen=True)
-class CartPoleConfig(TaskConfig):
+class CartPoleConfig(CartpoleRandomization):
     """Classic CartPole.
 
     Attributes:
@@ -107,6 +152,9 @@ class CartPole(Env[CartPoleConfig]):
     def default_params(self) -> CartpoleParams:
         return self._params
 
+    def sample_params(self, key: jax.Array) -> CartpoleParams:
+        return sample_cartpole_params(key, self._params, self.config)
+
     def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, None]:
         r = self.config.init_range
         s = jax.random.uniform(key, (4,), minval=-r, maxval=r)
@@ -130,7 +178,7 @@ class CartPole(Env[CartPoleConfig]):
 
 # --------------------------------------------------------------------- CartpoleStayUp-v0
 @dataclasses.dataclass(frozen=True)
-class StayUpConfig(TaskConfig):
+class StayUpConfig(CartpoleRandomization):
     """The ROS course's cartpole stay-up task (key names follow its parameter file).
 
     Attributes:
@@ -229,6 +277,9 @@ class CartpoleStayUp(Env[StayUpConfig]):
     def default_params(self) -> CartpoleParams:
         return self._params
 
+    def sample_params(self, key: jax.Array) -> CartpoleParams:
+        return sample_cartpole_params(key, self._params, self.config)
+
     def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, jax.Array]:
         n = self.config.init_noise
         noise = jax.random.uniform(key, (3,), minval=-n, maxval=n)
@@ -266,7 +317,7 @@ class CartpoleStayUp(Env[StayUpConfig]):
 
 # ------------------------------------------------------ CartpoleBalance / CartpoleSwingup
 @dataclasses.dataclass(frozen=True)
-class BalanceConfig(TaskConfig):
+class BalanceConfig(CartpoleRandomization):
     """DM-Control-style cartpole balance / swing-up.
 
     Attributes:
@@ -315,6 +366,9 @@ class CartpoleBalance(Env[BalanceConfig]):
     @property
     def default_params(self) -> CartpoleParams:
         return self._params
+
+    def sample_params(self, key: jax.Array) -> CartpoleParams:
+        return sample_cartpole_params(key, self._params, self.config)
 
     def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, None]:
         pos_key, vel_key = jax.random.split(key)
