@@ -52,12 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _validate(args: argparse.Namespace, ids: list[str]) -> list[str]:
     import jax
 
+    from jaxenvs import registry
     from jaxenvs.bench import MODES
 
     tasks = args.tasks or ids
-    unknown = [t for t in tasks if t not in ids]
-    if unknown:
-        raise ValueError(f"unknown env id {unknown[0]!r}; registered ids: {', '.join(ids)}")
+    for task in tasks:
+        registry.spec(task)  # unknown ids raise; "module:Id" imports module (registering Id)
     bad = [m for m in args.modes if m not in MODES]
     if bad:
         raise ValueError(f"unknown mode {bad[0]!r}; choose from {', '.join(MODES)}")
