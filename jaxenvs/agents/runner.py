@@ -22,6 +22,7 @@ that never stopped.
 
 from __future__ import annotations
 
+import concurrent.futures
 import csv
 import dataclasses
 import functools
@@ -337,19 +338,40 @@ def _rate_key(metrics: Mapping[str, Any]) -> str | None:
     return None
 
 
-@functools.lru_cache(maxsize=4)
-def _programs(resolved: ResolvedConfig) -> tuple[Env, Trainer, Any, Any, Any]:
-    """Env, trainer and the jitted ``vmap``s of init, chunk and the evaluator.
+_COMPILER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxenvs-compile")
 
-    Cached per config, so a resume or a second run in the same process (tests, notebooks)
-    reuses the compiled programs.
+
+@dataclasses.dataclass(frozen=True)
+class _Programs:
+    env: Env
+    trainer: Trainer
+    init_fn: Any
+    chunk_fn: Any
+    eval_future: concurrent.futures.Future
+
+    def evaluate(self, params: PyTree, key: jax.Array) -> Any:
+        return self.eval_future.result()(params, key)
+
+
+@functools.lru_cache(maxsize=4)
+def _programs(resolved: ResolvedConfig) -> _Programs:
+    """Env, trainer, the jitted ``vmap``s of init and chunk, and the evaluator.
+
+    The evaluator is compiled ahead of time on a background thread while the caller
+    compiles and runs the training chunks (XLA compiles one program per core, so on a
+    small machine this hides most of the evaluator's compile). Cached per config, so a
+    resume or a second run in the same process reuses the compiled programs.
     """
     env, trainer = build(resolved)
     init_fn = jax.jit(jax.vmap(trainer.init))
     chunk_fn = jax.jit(jax.vmap(trainer.chunk))
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
     evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, None)))
-    return env, trainer, init_fn, chunk_fn, evaluate
+    keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
+    params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), jax.eval_shape(init_fn, keys))
+    key_shape = jax.eval_shape(lambda: eval_key(0))
+    future = _COMPILER.submit(lambda: evaluate.lower(params_shape, key_shape).compile())
+    return _Programs(env, trainer, init_fn, chunk_fn, future)
 
 
 def train(
@@ -379,7 +401,14 @@ def train(
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    env, trainer, init_fn, chunk_fn, evaluate = _programs(resolved)
+    programs = _programs(resolved)
+    env, trainer, init_fn, chunk_fn = (
+        programs.env,
+        programs.trainer,
+        programs.init_fn,
+        programs.chunk_fn,
+    )
+    evaluate = programs.evaluate
     run = resolved.train
     keys = seed_keys(run.seed, run.num_seeds)
     params_fn = jax.vmap(trainer.policy_params)
