@@ -1,0 +1,177 @@
+"""The tutorial (docs/custom_task.md) as tests: a user's own task package, registered on
+import, goes through the battery, ``make``, Gymnasium, ``jaxenvs train`` and
+``jaxenvs bench`` with no further code. Also: the battery names what a broken task got
+wrong, and installed packages are found through the ``jaxenvs.envs`` entry points.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import sys
+from pathlib import Path
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "pendulum"
+sys.path.insert(0, str(EXAMPLE))
+
+import my_pendulum  # noqa: E402  (registers MyPendulum-v0)
+from my_pendulum.task import Pendulum, PendulumConfig  # noqa: E402
+
+import jaxenvs  # noqa: E402
+from jaxenvs import registry  # noqa: E402
+from jaxenvs.cli import main  # noqa: E402
+from jaxenvs.testing import TaskCheckError, check_task  # noqa: E402
+
+ID = "MyPendulum-v0"
+#: what a command-line user types when the package is not installed (module:Id)
+CLI_ID = "my_pendulum:MyPendulum-v0"
+
+
+def test_registered_on_import() -> None:
+    assert ID in jaxenvs.list_envs()
+    assert jaxenvs.spec(ID).factory is my_pendulum.Pendulum
+    assert jaxenvs.spec(CLI_ID) is jaxenvs.spec(ID)
+
+
+def test_passes_the_battery() -> None:
+    # 50-step episodes so that the 120-step rollout sees auto-resets
+    check_task(jaxenvs.make(ID, episode_length=50), num_envs=4, rollout_steps=120)
+
+
+def test_make_batched_and_overrides() -> None:
+    benv = jaxenvs.make(CLI_ID, num_envs=4, max_torque=3.0)
+    assert isinstance(benv, jaxenvs.BatchedEnv) and benv.config.max_torque == 3.0
+    state = jax.jit(benv.reset)(jax.random.key(0))
+    state = jax.jit(benv.step)(state, jnp.ones((4, 1)))
+    assert state.obs.shape == (4, 3) and state.reward.shape == (4,)
+    # the observation is (cos, sin, velocity) of the hinge
+    np.testing.assert_allclose(
+        np.asarray(state.obs[:, 0] ** 2 + state.obs[:, 1] ** 2), np.ones(4), atol=1e-5
+    )
+    with pytest.raises(jaxenvs.ConfigError, match="max_torque"):
+        jaxenvs.make(ID, max_torque=-1.0)
+
+
+def test_gymnasium_make() -> None:
+    env = gymnasium.make(f"jaxenvs/{ID}")
+    assert env.spec is not None and env.spec.max_episode_steps == 200
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (3,) and env.observation_space.contains(obs)
+    total = 0.0
+    for _ in range(5):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        total += reward
+        assert not terminated and not truncated and "upright" in info
+    assert np.isfinite(total) and total < 0  # the reward is a cost, 0 at best
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny PPO run through the command line, as the tutorial shows it."""
+    out = tmp_path_factory.mktemp("runs") / "pendulum-ppo"
+    argv = [
+        "train", CLI_ID, "--algo", "ppo", "--config", str(EXAMPLE / "ppo_MyPendulum-v0.yaml"),
+        "--num-envs", "4", "--total-steps", "800", "--eval-episodes", "1",
+        "--no-video", "--no-compile-cache", "--quiet", "--out", str(out),
+    ]  # fmt: skip
+    assert main(argv) == 0
+    return out
+
+
+def test_train_from_the_command_line(run_dir: Path) -> None:
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["env_steps"] >= 800 and np.isfinite(summary["eval_mean_return"])
+    assert (run_dir / "config.yaml").read_text().count(CLI_ID) == 1
+
+
+def test_trained_policy_plays(run_dir: Path) -> None:
+    from jaxenvs.agents.runner import load_policy
+
+    env_id, env, act_fn = load_policy(run_dir)
+    assert env_id == CLI_ID and isinstance(env, Pendulum)
+    action = jax.jit(act_fn)(jnp.zeros(3), jax.random.key(0))
+    assert action.shape == (1,) and bool(jnp.all(jnp.abs(action) <= 1))
+
+
+def test_bench_from_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = [
+        "bench", "--tasks", CLI_ID, "--batches", "2", "--modes", "full",
+        "--steps", "5", "--repeats", "1", "--target-s", "0.01",
+    ]  # fmt: skip
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert CLI_ID in out and "steps/s" in out
+
+
+# ------------------------------------------------------------------ broken toy tasks
+class IgnoresKey(Pendulum):
+    """Bug: every reset starts from the same state."""
+
+    def _init(self, key, params):  # type: ignore[no-untyped-def]
+        return super()._init(jax.random.key(0), params)
+
+
+class Retraces(Pendulum):
+    """Bug: the step turns an int32 counter in ``extras`` into a float (new signature)."""
+
+    def _init(self, key, params):  # type: ignore[no-untyped-def]
+        data, _ = super()._init(key, params)
+        return data, jnp.zeros((), jnp.int32)
+
+    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+        data, _ = super()._act(data, None, action, params)
+        return data, extras + 0.5
+
+
+def test_battery_names_a_reset_that_ignores_its_key() -> None:
+    with pytest.raises(TaskCheckError, match=r"^\[determinism\] reset with different keys"):
+        check_task(IgnoresKey(PendulumConfig()))
+
+
+def test_battery_names_a_step_that_retraces() -> None:
+    with pytest.raises(TaskCheckError, match=r"^\[single_trace\] reset traced 1x and step [2-9]x"):
+        check_task(Retraces(PendulumConfig()))
+
+
+# ------------------------------------------------------------ installed packages
+def _fake_entry_points(monkeypatch: pytest.MonkeyPatch, *entries: tuple[str, str]) -> None:
+    eps = [importlib.metadata.EntryPoint(n, v, registry.ENTRY_POINT_GROUP) for n, v in entries]
+
+    def entry_points(group: str) -> list[importlib.metadata.EntryPoint]:
+        return eps if group == registry.ENTRY_POINT_GROUP else []
+
+    monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
+    monkeypatch.setattr(registry, "_plugins_loaded", False)
+
+
+def test_installed_package_found_through_entry_point(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    (tmp_path / "toy_plugin.py").write_text(
+        "import jaxenvs\n"
+        "from my_pendulum.task import Pendulum, PendulumConfig\n"
+        "jaxenvs.register('ToyPlugin-v0', Pendulum, PendulumConfig(max_torque=1.0))\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    _fake_entry_points(monkeypatch, ("toy", "toy_plugin"), ("broken", "no_such_module_xyz"))
+    try:
+        with pytest.warns(UserWarning, match="plugin 'broken'.*failed to load"):
+            assert jaxenvs.spec("ToyPlugin-v0").config.max_torque == 1.0
+        assert "ToyPlugin-v0" in jaxenvs.list_envs()
+    finally:
+        registry._REGISTRY.pop("ToyPlugin-v0", None)
+        sys.modules.pop("toy_plugin", None)
+
+
+def test_unknown_module_prefix_is_a_user_error(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(ValueError, match="cannot import 'no_such_pkg'"):
+        jaxenvs.make("no_such_pkg:Thing-v0")
+    assert main(["bench", "--tasks", "no_such_pkg:Thing-v0"]) == 2
+    assert "cannot import" in capsys.readouterr().err
