@@ -118,6 +118,9 @@ def test_shipped_configs_resolve():
         0.999,
     )
     assert (agent.number_splits, agent.episodes_per_env, agent.num_envs) == (10, 1000, 1)
+    # without --config, the shipped file of (algo, id) is the default
+    default = runner.resolve_config("CartPole-v0", "sarsa")
+    assert default.agent.number_splits == (1, 1, 6, 6) and default.algo == "sarsa"
 
 
 def test_missing_algorithm_module_is_reported(monkeypatch):
