@@ -97,14 +97,10 @@ def test_command_line_overrides_file(tmp_path):
 
 def test_shipped_configs_resolve():
     files = resources.files("jaxenvs.configs")
-    names = sorted(p.name for p in files.iterdir() if p.name.endswith(".yaml"))
-    assert {"cartpole_qlearn.yaml", "cartpole_sarsa.yaml", "cartpole_stayup_qlearn.yaml"} <= set(
-        names
-    )
-    for name in names:
+    for (algo, env_id), name in runner.SHIPPED_CONFIGS.items():
         with resources.as_file(files.joinpath(name)) as path:
             resolved = runner.resolve_config(None, None, path)
-        assert resolved.algo in runner.ALGORITHMS
+        assert (resolved.algo, resolved.env_id) == (algo, env_id), name
     with resources.as_file(files.joinpath("cartpole_stayup_qlearn.yaml")) as path:
         course = runner.resolve_config(None, None, path)
     env, agent = course.env, course.agent
