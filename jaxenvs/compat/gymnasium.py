@@ -51,6 +51,9 @@ from jaxenvs.core import BatchedEnv, Env, State
 
 PREFIX = "jaxenvs/"
 RENDER_MODES = ["rgb_array"]
+#: what the entry points declare to ``gymnasium.make``: "human" is listed so that it reaches
+#: the constructor (which explains what to do) instead of being silently rerouted.
+_DECLARED_MODES = ["rgb_array", "human"]
 #: info keys every env reports besides its task metrics.
 BASE_INFO_KEYS = ("nan_actions", "diverged")
 
@@ -280,7 +283,7 @@ def check_action(env: Env, action: Any, num_envs: int | None = None) -> np.ndarr
     return arr.astype(np.float32, copy=False)
 
 
-def _check_render_mode(render_mode: str | None) -> None:
+def _check_render_mode(render_mode: str | None, human_ok: bool = False) -> None:
     if render_mode is None or render_mode in RENDER_MODES:
         return
     if render_mode == "human":
@@ -290,9 +293,12 @@ def _check_render_mode(render_mode: str | None) -> None:
                 "WAYLAND_DISPLAY are unset); use render_mode='rgb_array' (frames, videos "
                 "through gymnasium.wrappers.RecordVideo or `jaxenvs render`)"
             )
+        if human_ok:  # the single env draws in MuJoCo's viewer (jaxenvs.viewer)
+            return
         raise ValueError(
-            "render_mode='human' is not provided by the Gymnasium facade; use "
-            f"render_mode='rgb_array' (supported: {RENDER_MODES})"
+            "render_mode='human' has no native window in the Gymnasium facade yet; wrap an "
+            "rgb_array env instead: gymnasium.wrappers.HumanRendering(gymnasium.make(id, "
+            "render_mode='rgb_array'))"
         )
     raise ValueError(f"unsupported render_mode {render_mode!r}; supported: {RENDER_MODES}")
 
@@ -325,13 +331,15 @@ class JaxEnv(gymnasium.Env):
 
     Args:
       env_id: a registered jaxenvs id (without the ``jaxenvs/`` prefix).
-      render_mode: ``None`` or ``"rgb_array"``.
+      render_mode: ``None``, ``"rgb_array"``, or ``"human"``: MuJoCo's viewer window
+        (:mod:`jaxenvs.viewer`), drawn in real time at every reset and step; needs a
+        display (refused with a clear message where there is none).
       width, height, camera: frame size and camera for ``render()`` (see
         :mod:`jaxenvs.render`).
       **overrides: fields of the task's config.
     """
 
-    metadata: dict[str, Any] = {"render_modes": RENDER_MODES, "render_fps": 50}
+    metadata: dict[str, Any] = {"render_modes": _DECLARED_MODES, "render_fps": 50}
 
     def __init__(
         self,
@@ -342,14 +350,17 @@ class JaxEnv(gymnasium.Env):
         camera: str | int | None = None,
         **overrides: Any,
     ) -> None:
-        _check_render_mode(render_mode)
+        _check_render_mode(render_mode, human_ok=True)
         self._fns = compiled(env_id, overrides)
         self.env_id = env_id
         self.jax_env: Env = self._fns.env
         self.observation_space = self.jax_env.observation_space
         self.action_space = self.jax_env.action_space
         self.render_mode = render_mode
-        self.metadata = {"render_modes": RENDER_MODES, "render_fps": _render_fps(self.jax_env)}
+        self.metadata = {
+            "render_modes": [*RENDER_MODES, "human"],
+            "render_fps": _render_fps(self.jax_env),
+        }
         self._render_args = (width, height, camera)
         self._renderer: Any = None
         self._bufs: Bufs | None = None
@@ -368,6 +379,8 @@ class JaxEnv(gymnasium.Env):
         super().reset(seed=seed)
         _check_options(options, ())
         self._bufs, obs = self._fns.reset(_seed32(self.np_random))
+        if self.render_mode == "human":
+            self.render()
         return np.array(obs), {}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -382,6 +395,8 @@ class JaxEnv(gymnasium.Env):
             value = buf[2 * n + 3 + j]
             info[key] = bool(value) if is_bool else float(value)
         info["nan_actions"] = int(info["nan_actions"])
+        if self.render_mode == "human":
+            self.render()
         return (
             buf[:n].copy(),
             float(buf[2 * n]),
@@ -398,6 +413,13 @@ class JaxEnv(gymnasium.Env):
             return None
         if self._bufs is None:
             raise ResetNeeded("Cannot call env.render() before calling env.reset()")
+        if self.render_mode == "human":
+            if self._renderer is None:
+                from jaxenvs.viewer import StateViewer
+
+                self._renderer = StateViewer(self.jax_env)
+            self._renderer.show(self.state)
+            return None
         if self._renderer is None:
             from jaxenvs.render import Renderer
 
@@ -428,7 +450,7 @@ class JaxVectorEnv(VectorEnv):
 
     metadata: dict[str, Any] = {
         "autoreset_mode": AutoresetMode.SAME_STEP,
-        "render_modes": RENDER_MODES,
+        "render_modes": _DECLARED_MODES,
         "render_fps": 50,
     }
 
@@ -531,8 +553,9 @@ class JaxVectorEnv(VectorEnv):
         # SAME_STEP: finished envs report their last step under final_obs / final_info;
         # the top-level info of an auto-reset env is its (empty) reset info.
         running = ~done
-        for k, v in values.items():
-            infos[k], infos[f"_{k}"] = v, running
+        if running.any():  # as SyncVectorEnv: a key exists only if some env reports it
+            for k, v in values.items():
+                infos[k], infos[f"_{k}"] = v, running
         final_obs = np.full(self.num_envs, None, dtype=object)
         for i in np.flatnonzero(done):
             final_obs[i] = buf[i, n:r].copy()
