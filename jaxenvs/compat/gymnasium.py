@@ -51,6 +51,9 @@ from jaxenvs.core import BatchedEnv, Env, State
 
 PREFIX = "jaxenvs/"
 RENDER_MODES = ["rgb_array"]
+#: what the entry points declare to ``gymnasium.make``: "human" is listed so that it reaches
+#: the constructor (which explains what to do) instead of being silently rerouted.
+_DECLARED_MODES = ["rgb_array", "human"]
 #: info keys every env reports besides its task metrics.
 BASE_INFO_KEYS = ("nan_actions", "diverged")
 
@@ -293,8 +296,9 @@ def _check_render_mode(render_mode: str | None, human_ok: bool = False) -> None:
         if human_ok:  # the single env draws in MuJoCo's viewer (jaxenvs.viewer)
             return
         raise ValueError(
-            "render_mode='human' is not provided by the Gymnasium facade; use "
-            f"render_mode='rgb_array' (supported: {RENDER_MODES})"
+            "render_mode='human' has no native window in the Gymnasium facade yet; wrap an "
+            "rgb_array env instead: gymnasium.wrappers.HumanRendering(gymnasium.make(id, "
+            "render_mode='rgb_array'))"
         )
     raise ValueError(f"unsupported render_mode {render_mode!r}; supported: {RENDER_MODES}")
 
@@ -335,7 +339,7 @@ class JaxEnv(gymnasium.Env):
       **overrides: fields of the task's config.
     """
 
-    metadata: dict[str, Any] = {"render_modes": [*RENDER_MODES, "human"], "render_fps": 50}
+    metadata: dict[str, Any] = {"render_modes": _DECLARED_MODES, "render_fps": 50}
 
     def __init__(
         self,
@@ -446,7 +450,7 @@ class JaxVectorEnv(VectorEnv):
 
     metadata: dict[str, Any] = {
         "autoreset_mode": AutoresetMode.SAME_STEP,
-        "render_modes": RENDER_MODES,
+        "render_modes": _DECLARED_MODES,
         "render_fps": 50,
     }
 
@@ -549,8 +553,9 @@ class JaxVectorEnv(VectorEnv):
         # SAME_STEP: finished envs report their last step under final_obs / final_info;
         # the top-level info of an auto-reset env is its (empty) reset info.
         running = ~done
-        for k, v in values.items():
-            infos[k], infos[f"_{k}"] = v, running
+        if running.any():  # as SyncVectorEnv: a key exists only if some env reports it
+            for k, v in values.items():
+                infos[k], infos[f"_{k}"] = v, running
         final_obs = np.full(self.num_envs, None, dtype=object)
         for i in np.flatnonzero(done):
             final_obs[i] = buf[i, n:r].copy()
