@@ -1,0 +1,384 @@
+"""Hexapod tasks: a six-legged walker (``robots/hexapod.xml``) and one of its legs on a
+fixed base (``robots/hexapod_leg.xml``).
+
+Robot: a 1.0 kg box body (24 x 16 x 5 cm) and six legs of three servo-driven joints in the
+proportions of small hobby hexapod kits: hip yaw (+-0.46 rad), femur and tibia pitch
+(+-1.57 rad, positive lifts the leg); coxa 4 cm, femur 8 cm, foot tip 13.2 cm below the
+knee; about 2.0 kg in all. Servos are MuJoCo position actuators (kp 20 N m/rad, torque
+limited to +-2 N m, joint damping 0.3, armature 0.005 kg m^2). Actions in [-1, 1] map
+linearly to joint POSITION targets over the joint range (0 = the standing pose: coxa and
+femur horizontal, tibia vertical). Position targets were chosen over velocity targets
+because a zero action then holds a stable stance with no controller in the loop, which is
+what hobby servos do (benchmarks/NOTES.md).
+
+=====================  =============================================================
+``HexapodWalk-v0``      walk toward a target sampled at reset; falls end the episode
+``HexapodOneLeg-v0``    put one leg's foot tip on a reachable target; no contacts
+=====================  =============================================================
+
+Physics for MJX speed on CPU (measurements in benchmarks/NOTES.md): the only collisions
+are six explicit foot-floor pairs (condim 3, pyramidal cone); joints are unlimited (no
+limit rows: the servo range is the joint range); Euler integration with damping implicit;
+the CG solver (``solver_iterations`` and ``ls_iterations`` from the config) with a SPARSE
+mass matrix, so that no step calls LAPACK: MJX's Newton solver and its dense
+factorisations call LAPACK's batched Cholesky, which deadlocks XLA's CPU thread pool on a
+2-core machine at batch >= 128 (the stall recorded in /work/shared/FINDINGS.md).
+
+Params (``HexapodParams``): ``model`` holds MJX model fields ``body_mass``,
+``body_inertia``, ``dof_damping``, ``actuator_gainprm``, ``actuator_biasprm`` and
+(walker only) ``pair_friction``; ``target_range`` is the task's target range.
+``sample_params`` scales each body's mass and inertia together by ``mass_scale``, each
+foot pair's friction by ``friction_scale``, each servo's kp (gain and bias together) by
+``gain_scale`` and each joint's damping by ``damping_scale``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+from mujoco import mjx
+
+from jaxenvs import randomize
+from jaxenvs.config import require
+from jaxenvs.core import Env, TaskConfig
+from jaxenvs.randomize import Range
+from jaxenvs.robots import robot_xml
+from jaxenvs.sim import Sim
+
+COXA, FEMUR, TIP = 0.04, 0.08, 0.132  # m: hip->femur joint, femur->tibia joint, knee->tip
+LEG_RANGE = (0.46, 1.57, 1.57)  # half-ranges of hip yaw, femur, tibia (rad)
+JOINT_RANGE = jnp.asarray(LEG_RANGE * 6, jnp.float32)
+STAND_HEIGHT = 0.135  # torso height when standing on all six feet at zero angles (m)
+WALK_FIELDS = (
+    "body_mass",
+    "body_inertia",
+    "dof_damping",
+    "actuator_gainprm",
+    "actuator_biasprm",
+    "pair_friction",
+)
+LEG_FIELDS = WALK_FIELDS[:-1]
+
+
+class HexapodParams(struct.PyTreeNode):
+    """Randomisable physics and task quantities.
+
+    Attributes:
+      model: MJX model fields swapped in at every step.
+      target_range: (low, high) of the target's distance (walker, m) or of the target
+        posture's joint angles as fractions of each joint's half-range (one leg).
+    """
+
+    model: dict[str, jax.Array]
+    target_range: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class HexapodRandomization(TaskConfig):
+    """Fields shared by both hexapod configs.
+
+    Attributes:
+      timestep, substeps: physics; the control period is their product (0.05 s, what
+        hobby servos sustain).
+      mass_scale, friction_scale, gain_scale, damping_scale: randomisation ranges
+        (factors on the defaults, one draw per body, foot pair, servo, joint).
+    """
+
+    timestep: float = 0.01
+    substeps: int = 5
+    mass_scale: Range = (0.8, 1.2)
+    friction_scale: Range = (0.7, 1.3)
+    gain_scale: Range = (0.8, 1.2)
+    damping_scale: Range = (0.7, 1.3)
+
+    def validate(self) -> None:
+        super().validate()
+        for name in ("mass_scale", "friction_scale", "gain_scale", "damping_scale"):
+            randomize.check_range(name, getattr(self, name), positive=True)
+
+
+def quat_to_mat(q: jax.Array) -> jax.Array:
+    """Rotation matrix (body -> world) of a unit quaternion ``(w, x, y, z)``."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return jnp.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def leg_tip(q: jax.Array) -> jax.Array:
+    """Forward kinematics of one leg: foot tip in the hip's frame for angles ``q`` (3,)."""
+    reach = COXA + FEMUR * jnp.cos(q[1]) + TIP * jnp.sin(q[1] + q[2])
+    height = FEMUR * jnp.sin(q[1]) - TIP * jnp.cos(q[1] + q[2])
+    return jnp.stack([reach * jnp.cos(q[0]), reach * jnp.sin(q[0]), height])
+
+
+def servo_targets(action: jax.Array) -> jax.Array:
+    """Joint position targets (rad) of actions in [-1, 1]: linear over each joint range."""
+    return action * JOINT_RANGE[: action.shape[0]]
+
+
+def _sample_model(
+    key: jax.Array, model: dict[str, jax.Array], config: HexapodRandomization
+) -> dict[str, jax.Array]:
+    mass_key, friction_key, gain_key, damping_key = jax.random.split(key, 4)
+    fields = dict(model)
+    fields["body_mass"], fields["body_inertia"] = randomize.scale_mass(
+        mass_key, fields["body_mass"], fields["body_inertia"], config.mass_scale
+    )
+    if "pair_friction" in fields:
+        fields["pair_friction"] = randomize.scale(
+            friction_key, fields["pair_friction"], config.friction_scale
+        )
+    kp = randomize.uniform(gain_key, config.gain_scale, fields["actuator_gainprm"].shape[:1])
+    fields["actuator_gainprm"] = fields["actuator_gainprm"].at[:, 0].multiply(kp)
+    fields["actuator_biasprm"] = fields["actuator_biasprm"].at[:, 1].multiply(kp)
+    fields["dof_damping"] = randomize.scale(
+        damping_key, fields["dof_damping"], config.damping_scale
+    )
+    return fields
+
+
+def _solver_edit(iterations: int, ls_iterations: int):  # type: ignore[no-untyped-def]
+    def edit(model: mujoco.MjModel) -> None:
+        model.opt.iterations = iterations
+        model.opt.ls_iterations = ls_iterations
+
+    return edit
+
+
+# -------------------------------------------------------------------------- HexapodWalk-v0
+@dataclasses.dataclass(frozen=True)
+class WalkConfig(HexapodRandomization):
+    """``HexapodWalk-v0``.
+
+    Attributes:
+      episode_length: 1000 steps of 0.05 s (50 s).
+      solver_iterations, ls_iterations: CG solver iterations and line-search steps. With
+        4 and 4 the stance jitters (joints at up to 0.6 rad/s after 10 s); 2 iterations
+        let an unconverged contact solve inject energy and launch the body (NOTES.md).
+      target_distance: the target is drawn at a distance uniform in this range (m), in a
+        uniformly random direction.
+      progress_weight: weight of the progress term (metres per second toward the target).
+      energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
+      alive_bonus: reward per step while not fallen.
+      min_height: the episode ends when the body's height falls below this (m).
+      min_upright: ... or when the body's z axis' vertical component falls below this
+        (0 = lying on its side; negative = flipped).
+      init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
+      init_height: initial body height (m): the feet start just above the floor.
+    """
+
+    episode_length: int = 1000
+    solver_iterations: int = 6
+    ls_iterations: int = 3
+    target_distance: Range = (1.0, 3.0)
+    progress_weight: float = 1.0
+    energy_weight: float = 0.002
+    alive_bonus: float = 0.05
+    min_height: float = 0.06
+    min_upright: float = 0.0
+    init_joint_noise: float = 0.05
+    init_height: float = 0.14
+
+    def validate(self) -> None:
+        super().validate()
+        require(self.solver_iterations >= 1, "solver_iterations", "must be >= 1")
+        require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
+        randomize.check_range("target_distance", self.target_distance, positive=True)
+        for name in ("progress_weight", "energy_weight", "alive_bonus", "init_joint_noise"):
+            require(getattr(self, name) >= 0, name, "must be >= 0")
+        require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
+        require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
+
+
+class HexapodWalk(Env[WalkConfig]):
+    """``HexapodWalk-v0``: walk the hexapod to a target on the floor.
+
+    * Observation (49): 18 joint angles (rad; legs lf, lm, lr, rf, rm, rr, each hip,
+      femur, tibia), 18 joint velocities, body height (m), gravity direction in the body
+      frame (3), body linear velocity in the body frame (3, m/s), body angular velocity
+      in the body frame (3, rad/s), unit direction to the target in the body frame (3;
+      the target is on the floor, the direction horizontal in world).
+    * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range.
+    * Reward: ``progress_weight * (d_prev - d) / 0.05 - energy_weight * sum|tau * qdot|
+      + alive_bonus`` with ``d`` the horizontal body-target distance; the progress term is
+      the decrease of the distance per step expressed in m/s.
+    * Termination: height < ``min_height`` or the body's up axis z-component <
+      ``min_upright`` (on its side or flipped). Truncation: 1000 steps.
+    * Start: body at 0.14 m with a random yaw, joints uniform in +-0.05 rad around the
+      stance, at rest; target (a mocap marker) at a distance uniform in 1-3 m in a random
+      direction.
+    * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s.
+    """
+
+    metric_keys = ("distance", "progress", "energy")
+
+    def __init__(self, config: WalkConfig | None = None) -> None:
+        config = config or WalkConfig()
+        sim = Sim(
+            robot_xml("hexapod"),
+            timestep=config.timestep,
+            substeps=config.substeps,
+            edit=_solver_edit(config.solver_iterations, config.ls_iterations),
+        )
+        super().__init__(config, sim)
+        self._torso = mujoco.mj_name2id(sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, "torso")
+        self._params = HexapodParams(
+            model=sim.default_fields(WALK_FIELDS),
+            target_range=jnp.asarray(config.target_distance, jnp.float32),
+        )
+
+    observation_size = 49
+    action_size = 18
+
+    @property
+    def default_params(self) -> HexapodParams:
+        return self._params
+
+    def sample_params(self, key: jax.Array) -> HexapodParams:
+        return self._params.replace(model=_sample_model(key, self._params.model, self.config))
+
+    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, None]:
+        joint_key, yaw_key, dist_key, angle_key = jax.random.split(key, 4)
+        c = self.config
+        yaw = jax.random.uniform(yaw_key, minval=-math.pi, maxval=math.pi)
+        quat = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
+        n = c.init_joint_noise
+        joints = jax.random.uniform(joint_key, (18,), minval=-n, maxval=n)
+        qpos = jnp.concatenate([jnp.array([0.0, 0.0, c.init_height]), quat, joints])
+        low, high = params.target_range[0], params.target_range[1]
+        dist = low + (high - low) * jax.random.uniform(dist_key)
+        angle = jax.random.uniform(angle_key, minval=-math.pi, maxval=math.pi)
+        target = jnp.stack([dist * jnp.cos(angle), dist * jnp.sin(angle), 0.01])[None]
+        data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24), mocap_pos=target)
+        return data, None
+
+    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+        model = self.sim.model_with(params.model)
+        return self.sim.step(model, data, servo_targets(action)), extras
+
+    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+        rot = quat_to_mat(data.qpos[3:7])
+        to_target = data.mocap_pos[0, :2] - data.qpos[:2]
+        to_target = to_target / jnp.maximum(jnp.linalg.norm(to_target), 1e-6)
+        direction = rot.T @ jnp.concatenate([to_target, jnp.zeros(1)])
+        return jnp.concatenate(
+            [
+                data.qpos[7:],
+                data.qvel[6:],
+                data.qpos[2:3],
+                rot.T @ jnp.array([0.0, 0.0, -1.0]),
+                rot.T @ data.qvel[:3],
+                data.qvel[3:6],
+                direction,
+            ]
+        )
+
+    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+        c = self.config
+        target = data.mocap_pos[0, :2]
+        d_prev = jnp.linalg.norm(target - prev.qpos[:2])
+        dist = jnp.linalg.norm(target - data.qpos[:2])
+        progress = (d_prev - dist) / self.control_dt
+        energy = jnp.sum(jnp.abs(data.actuator_force * data.qvel[6:]))
+        upright = quat_to_mat(data.qpos[3:7])[2, 2]
+        fallen = (data.qpos[2] < c.min_height) | (upright < c.min_upright)
+        reward = c.progress_weight * progress - c.energy_weight * energy + c.alive_bonus
+        metrics = {"distance": dist, "progress": progress, "energy": energy}
+        return reward, fallen, metrics
+
+
+# ------------------------------------------------------------------------ HexapodOneLeg-v0
+@dataclasses.dataclass(frozen=True)
+class OneLegConfig(HexapodRandomization):
+    """``HexapodOneLeg-v0``.
+
+    Attributes:
+      episode_length: 100 steps of 0.05 s (5 s).
+      target_fraction: the target posture's joint angles are drawn uniformly in
+        (low, high) x each joint's half-range ((-1, 1) = anywhere the leg can reach).
+      init_joint_noise: initial joint angles uniform in +- this (rad).
+    """
+
+    episode_length: int = 100
+    target_fraction: Range = (-1.0, 1.0)
+    init_joint_noise: float = 0.1
+
+    def validate(self) -> None:
+        super().validate()
+        randomize.check_range("target_fraction", self.target_fraction, min_low=-1, max_high=1)
+        require(self.init_joint_noise >= 0, "init_joint_noise", "must be >= 0")
+
+
+class HexapodOneLeg(Env[OneLegConfig]):
+    """``HexapodOneLeg-v0``: one hexapod leg on a fixed base reaches for a target.
+
+    * Observation (9): the 3 joint angles (rad), 3 joint velocities (rad/s), the target
+      (3, m, in the hip's frame).
+    * Action: Box(3) in [-1, 1]: joint position targets, linear over each joint's range.
+    * Reward: ``-|tip - target|^2`` (m^2), the foot tip from exact forward kinematics.
+    * Termination: none. Truncation: 100 steps.
+    * Start: joints uniform in +-0.1 rad, at rest. Target: joint angles drawn uniformly
+      in ``target_fraction`` x each joint's half-range, mapped through forward kinematics,
+      so it is always reachable; ``extras`` keeps those angles.
+    * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s; gravity on; no
+      contacts or constraints.
+    """
+
+    metric_keys = ("distance",)
+
+    def __init__(self, config: OneLegConfig | None = None) -> None:
+        config = config or OneLegConfig()
+        super().__init__(config, Sim(robot_xml("hexapod_leg"), config.timestep, config.substeps))
+        base = mujoco.mj_name2id(self.sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, "base")
+        self._hip = jnp.asarray(self.sim.mj_model.body_pos[base], jnp.float32)
+        self._params = HexapodParams(
+            model=self.sim.default_fields(LEG_FIELDS),
+            target_range=jnp.asarray(config.target_fraction, jnp.float32),
+        )
+
+    observation_size = 9
+    action_size = 3
+
+    @property
+    def default_params(self) -> HexapodParams:
+        return self._params
+
+    def sample_params(self, key: jax.Array) -> HexapodParams:
+        return self._params.replace(model=_sample_model(key, self._params.model, self.config))
+
+    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, jax.Array]:
+        joint_key, target_key = jax.random.split(key)
+        n = self.config.init_joint_noise
+        qpos = jax.random.uniform(joint_key, (3,), minval=-n, maxval=n)
+        low, high = params.target_range[0], params.target_range[1]
+        fraction = low + (high - low) * jax.random.uniform(target_key, (3,))
+        target_q = fraction * JOINT_RANGE[:3]
+        mocap = (leg_tip(target_q) + self._hip)[None]
+        data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(3), mocap_pos=mocap)
+        return data, target_q
+
+    def target(self, data: mjx.Data) -> jax.Array:
+        """The target in the hip's frame (m)."""
+        return data.mocap_pos[0] - self._hip
+
+    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+        model = self.sim.model_with(params.model)
+        return self.sim.step(model, data, servo_targets(action)), extras
+
+    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+        return jnp.concatenate([data.qpos, data.qvel, self.target(data)])
+
+    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+        err = leg_tip(data.qpos) - self.target(data)
+        sq = jnp.sum(err * err)
+        return -sq, jnp.zeros((), bool), {"distance": jnp.sqrt(sq)}
