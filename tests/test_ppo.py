@@ -206,13 +206,16 @@ def test_greedy_policy_acts_in_the_action_space(cartpole_run):
     assert bool(jnp.all((act >= 0) & (act < env.action_size)))
 
 
-def test_continuous_task_chunk_runs():
+def test_continuous_randomised_task_chunk_runs():
     env = jaxenvs.make("CartpoleBalance-v0", episode_length=50)
     config = dataclasses.replace(
-        CARTPOLE, total_steps=8 * 16, num_envs=8, num_steps=16, updates_per_chunk=1
+        CARTPOLE, total_steps=8 * 16, num_envs=8, num_steps=16, updates_per_chunk=1, randomize=True
     )
     trainer = ppo.make_trainer(env, config)
     state = trainer.init(jax.random.key(0))
+    # every env drew its own physics (domain randomisation)
+    masses = state.env_state.params.model["body_mass"]
+    assert masses.shape[0] == 8 and bool(jnp.any(masses[0] != masses[1]))
     state, metrics = jax.jit(trainer.chunk)(state)
     assert int(metrics["env_steps"]) == 128
     for key in ("loss", "entropy", "approx_kl"):

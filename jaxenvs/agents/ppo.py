@@ -75,6 +75,8 @@ class PPOConfig:
       normalize_rewards: divide rewards by the running std of the discounted return.
       actor_hidden, critic_hidden: MLP widths (tanh).
       log_std_init: initial log standard deviation (continuous tasks).
+      randomize: train on domain-randomised envs (each env draws its physics params from
+        the task's ``sample_params`` at every reset).
     """
 
     total_steps: int = 500_000
@@ -100,6 +102,7 @@ class PPOConfig:
     actor_hidden: tuple[int, ...] = (64, 64)
     critic_hidden: tuple[int, ...] = (64, 64)
     log_std_init: float = 0.0
+    randomize: bool = False
 
     def validate(self) -> None:
         for name in ("total_steps", "num_envs", "num_steps", "updates_per_chunk"):
@@ -259,7 +262,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
     """The PPO :class:`Trainer` of ``env`` (a single env; a batched one is unwrapped)."""
     config.validate()
     single: Env = env.env if isinstance(env, BatchedEnv) else env
-    benv = BatchedEnv(single, config.num_envs)
+    benv = BatchedEnv(single, config.num_envs, randomize=config.randomize)
     net = make_network(single, config)
     head = CATEGORICAL if single.discrete else GAUSSIAN
 
