@@ -12,10 +12,11 @@ A config file is YAML with separate sections, all optional::
     train: {seed: 0, num_seeds: 1, ...}              # RunConfig fields
 
 A run directory holds ``config.yaml`` (fully resolved: every field of every section),
-``progress.csv`` (one row per chunk and seed), ``checkpoint.npz`` (written atomically
-after every chunk), ``summary.json``, ``learning_curve.png`` and, when rendering works,
-``video.mp4``. The run itself: ``vmap(init)`` over ``num_seeds`` keys, then a Python loop
-over chunks of one jitted ``vmap(chunk)``; a chunk is a pure function of the runner state,
+``progress.csv`` (one row per chunk and seed, with wall and process-CPU seconds),
+``checkpoint.npz`` (written atomically after every chunk), ``summary.json``,
+``learning_curve.png`` and, when rendering works, ``video.mp4``. The run itself:
+``vmap(init)`` over ``num_seeds`` keys, then a Python loop over chunks of one jitted
+``vmap(chunk)``; a chunk is a pure function of the runner state,
 so resuming from the checkpoint after chunk ``i`` gives the same final state as a run
 that never stopped.
 """
@@ -289,7 +290,7 @@ def _metric_columns(metric_shapes: Mapping[str, Any]) -> list[str]:
     extra = sorted(
         k for k, v in metric_shapes.items() if k not in CHUNK_METRICS and len(v.shape) == 1
     )
-    return ["chunk", "seed", *CHUNK_METRICS, *extra, "eval_return", "wall_seconds"]
+    return ["chunk", "seed", *CHUNK_METRICS, *extra, "eval_return", "wall_seconds", "cpu_seconds"]
 
 
 def _read_progress(path: Path) -> list[dict[str, str]]:
@@ -408,7 +409,7 @@ def train(
     Ctrl-C stops after the chunk in flight is discarded: the checkpoint of the last
     finished chunk stays valid, and the results so far are written.
     """
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -432,6 +433,7 @@ def train(
         state, meta = checkpoint.load(ckpt_path, template)
         start = int(meta["chunk"])
         wall_before = float(meta["wall_seconds"])
+        cpu_before = float(meta.get("cpu_seconds", 0.0))
         top = np.asarray(meta["top_lengths"], np.float32).reshape(run.num_seeds, -1)
         rows: list[dict[str, Any]] = [
             r for r in _read_progress(out / PROGRESS_FILE) if int(r["chunk"]) < start
@@ -441,7 +443,7 @@ def train(
     else:
         (out / CONFIG_FILE).write_text(yaml.safe_dump(resolved.to_dict(), sort_keys=False))
         state = init_fn(keys)
-        start, wall_before, rows, finished = 0, 0.0, [], False
+        start, wall_before, cpu_before, rows, finished = 0, 0.0, 0.0, [], False
         top = np.full((run.num_seeds, 0), -1.0, np.float32)
 
     def save_checkpoint(state: PyTree, chunk: int, top: np.ndarray, finished: bool) -> None:
@@ -451,6 +453,7 @@ def train(
             {
                 "chunk": chunk,
                 "wall_seconds": wall_before + time.perf_counter() - t0,
+                "cpu_seconds": cpu_before + time.process_time() - cpu0,
                 "top_lengths": top.tolist(),
                 "finished": finished,
                 "env_id": resolved.env_id,
@@ -484,10 +487,12 @@ def train(
                 returns, _, _ = evaluate(params_fn(new_state), eval_key(run.seed))
                 eval_mean = float(np.mean(returns))
             wall = wall_before + time.perf_counter() - t0
+            cpu = cpu_before + time.process_time() - cpu0
             new_rows = list(rows)
             for k in range(run.num_seeds):
                 row: dict[str, Any] = {c: _fmt(metrics[c][k]) for c in columns if c in metrics}
                 row.update(chunk=done_chunks, seed=k, wall_seconds=f"{wall:.3f}")
+                row["cpu_seconds"] = f"{cpu:.3f}"
                 row["eval_return"] = _fmt(eval_mean)
                 new_rows.append(row)
             new_top = top
@@ -527,6 +532,8 @@ def train(
     returns = np.asarray(returns)
     summary = _summary(rows, returns, top, wall, done_chunks, trainer.num_chunks, finished)
     summary.update(env_id=resolved.env_id, algo=resolved.algo, interrupted=interrupted)
+    # process CPU time (all threads): on a shared, loaded machine a steadier figure than wall
+    summary["cpu_seconds"] = round(cpu_before + time.process_time() - cpu0, 3)
     _write_json(out / SUMMARY_FILE, summary)
     try:
         plot_curves([out], out / CURVE_FILE)
