@@ -23,6 +23,7 @@ A display is needed (X11 or Wayland): :func:`require_display` raises
 from __future__ import annotations
 
 import copy
+import importlib
 import os
 import threading
 import time
@@ -164,6 +165,12 @@ class Player:
 
 
 # ------------------------------------------------------------------------------ viewer
+def _passive_launcher() -> Callable[..., Any]:
+    """``mujoco.viewer.launch_passive``, once a display is known to exist."""
+    require_display()
+    return importlib.import_module("mujoco.viewer").launch_passive
+
+
 def _launch(launch: Callable[..., Any], model: mujoco.MjModel, data: mujoco.MjData) -> Any:
     """``launch(model, data)``, remembering the threads it starts on the handle.
 
@@ -200,10 +207,7 @@ def view(
     ``state``, ``episodes``).
     """
     if launch is None:
-        require_display()
-        import mujoco.viewer
-
-        launch = mujoco.viewer.launch_passive
+        launch = _passive_launcher()
     model = copy.deepcopy(env.sim.mj_model)
     data = mujoco.MjData(model)
     player = Player(env, mode, act_fn, seed)
@@ -238,10 +242,7 @@ class StateViewer:
 
     def __init__(self, env: Env, launch: Callable[..., Any] | None = None) -> None:
         if launch is None:
-            require_display()
-            import mujoco.viewer
-
-            launch = mujoco.viewer.launch_passive
+            launch = _passive_launcher()
         self.env = env
         self.model = copy.deepcopy(env.sim.mj_model)
         self.data = mujoco.MjData(self.model)
