@@ -1,0 +1,150 @@
+"""Steps/s of the Gymnasium facade next to Gymnasium's own env of the same kind.
+
+Single env: ``gymnasium.make("jaxenvs/ID")`` (with the wrappers ``make`` adds) and the raw
+``JaxEnv``, against ``gymnasium.make(PEER)``. Vector: ``gymnasium.make_vec("jaxenvs/ID",
+N, "vector_entry_point")`` against ``gymnasium.make_vec(PEER, N, "sync")``
+(``SyncVectorEnv``). Random actions, drawn before timing; episodes end and reset as they
+do in use. Rounds alternate ours and the peer so that machine noise hits both alike; the
+best round is reported (and all rounds in the JSON).
+
+    python benchmarks/facade.py --tasks CartPole-v0 Reacher-v0 --num-envs 1024 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+
+import jaxenvs  # noqa: F401  (registers jaxenvs/<id>)
+
+PEERS = {"CartPole-v0": "CartPole-v1", "Reacher-v0": "Reacher-v5"}
+
+
+def _actions(space: gym.Space, count: int, seed: int) -> list[Any]:
+    space.seed(seed)
+    return [space.sample() for _ in range(count)]
+
+
+def time_single(env: gym.Env, steps: int, seed: int = 0) -> float:
+    """Steps/s of one env over ``steps`` steps (after a warm-up step)."""
+    actions = _actions(env.action_space, 256, seed)
+    env.reset(seed=seed)
+    env.step(actions[0])
+    start = time.perf_counter()
+    for t in range(steps):
+        _, _, terminated, truncated, _ = env.step(actions[t % 256])
+        if terminated or truncated:
+            env.reset()
+    return steps / (time.perf_counter() - start)
+
+
+def time_vector(envs: gym.vector.VectorEnv, steps: int, seed: int = 0) -> float:
+    """Env steps/s (num_envs x vector steps / s) of a vector env (after a warm-up step)."""
+    actions = _actions(envs.action_space, 16, seed)
+    envs.reset(seed=seed)
+    envs.step(actions[0])
+    start = time.perf_counter()
+    for t in range(steps):
+        envs.step(actions[t % 16])
+    return steps * envs.num_envs / (time.perf_counter() - start)
+
+
+def _rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str, list[float]]:
+    out: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            out[name].append(fn())
+    return out
+
+
+def bench_task(
+    env_id: str, steps: int, num_envs: int, vec_steps: int, peer_vec_steps: int, rounds: int
+) -> dict[str, Any]:
+    peer = PEERS.get(env_id)
+    t0 = time.perf_counter()
+    ours = gym.make(f"jaxenvs/{env_id}")
+    raw = gym.make(f"jaxenvs/{env_id}").unwrapped
+    time_single(ours, 2)
+    first_single = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    ours_vec = gym.make_vec(f"jaxenvs/{env_id}", num_envs, vectorization_mode="vector_entry_point")
+    time_vector(ours_vec, 1)
+    first_vec = time.perf_counter() - t0
+    single: dict[str, Callable[[], float]] = {
+        "ours (gym.make)": lambda: time_single(ours, steps),
+        "ours (raw JaxEnv)": lambda: time_single(raw, steps),
+    }
+    vector: dict[str, Callable[[], float]] = {
+        f"ours make_vec x{num_envs}": lambda: time_vector(ours_vec, vec_steps)
+    }
+    if peer is not None:
+        peer_env = gym.make(peer)
+        peer_vec = gym.make_vec(peer, num_envs, vectorization_mode="sync")
+        single[f"Gymnasium {peer}"] = lambda: time_single(peer_env, steps)
+        vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}"] = lambda: time_vector(
+            peer_vec, peer_vec_steps
+        )
+    result = {
+        "task": env_id,
+        "peer": peer,
+        "num_envs": num_envs,
+        "first_call_s": {"single": first_single, "vector": first_vec},
+        "single": _rounds(single, rounds),
+        "vector": _rounds(vector, rounds),
+    }
+    for env in (ours, raw, ours_vec):
+        env.close()
+    return result
+
+
+def report(result: dict[str, Any]) -> None:
+    rounds = len(next(iter(result["single"].values())))
+    print(f"\n{result['task']} (peer {result['peer']}), best of {rounds} rounds")
+    for kind in ("single", "vector"):
+        best = {name: max(v) for name, v in result[kind].items()}
+        for name, value in best.items():
+            print(f"  {kind:6s}  {name:45s} {value:12,.0f} steps/s")
+        names = list(best)
+        if len(names) >= 2 and result["peer"]:
+            print(f"  {kind:6s}  ratio ours/peer: {best[names[0]] / best[names[-1]]:.2f}x")
+    print(
+        f"  first call (compile) single {result['first_call_s']['single']:.1f} s, "
+        f"vector {result['first_call_s']['vector']:.1f} s"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(PEERS))
+    parser.add_argument("--steps", type=int, default=3000, help="single-env steps per round")
+    parser.add_argument("--num-envs", type=int, default=1024)
+    parser.add_argument("--vec-steps", type=int, default=200, help="our vector steps per round")
+    parser.add_argument("--peer-vec-steps", type=int, default=10, help="SyncVectorEnv steps")
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--json", help="write all rounds here")
+    args = parser.parse_args()
+    results = []
+    for env_id in args.tasks:
+        res = bench_task(
+            env_id, args.steps, args.num_envs, args.vec_steps, args.peer_vec_steps, args.rounds
+        )
+        report(res)
+        results.append(res)
+    if args.json:
+        import jax
+
+        meta = {"machine": platform.machine(), "python": platform.python_version()}
+        meta["jax"] = jax.__version__
+        meta["gymnasium"] = gym.__version__
+        with open(args.json, "w") as f:
+            json.dump({"meta": meta, "results": results}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
