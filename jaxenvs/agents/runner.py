@@ -721,7 +721,7 @@ def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None 
             ax.fill_between(steps, lo, hi, color=color, alpha=0.15)
         with np.errstate(all="ignore"):
             mean = np.nanmean(ret, axis=1) if ret.shape[1] else ret
-        ax.plot(steps, mean, color=color, linewidth=2, label=f"{label} ({ret.shape[1]} seeds)")
+        ax.plot(steps, mean, color=color, linewidth=2, label=f"{label} ({_seeds(ret.shape[1])})")
     ax.set_xlabel("env steps")
     ax.set_ylabel("mean episode return (per chunk)")
     ax.grid(alpha=0.3)
@@ -731,6 +731,10 @@ def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None 
     fig.savefig(out, dpi=100)
     plt.close(fig)
     return out
+
+
+def _seeds(n: int) -> str:
+    return f"{n} seed" if n == 1 else f"{n} seeds"
 
 
 def _run_label(run_dir: Path) -> str:
