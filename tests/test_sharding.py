@@ -1,0 +1,229 @@
+"""Env batches and PPO spread over several devices (jaxenvs.sharding).
+
+The multi-device checks run in subprocesses, because the CPU device count
+(``XLA_FLAGS=--xla_force_host_platform_device_count=N``) must be set before JAX starts:
+one process with 2 devices and one with 4, run side by side, between them covering
+meshes of 1, 2 and 4 devices for both the rollout and PPO. Each writes its results to an
+``.npz``; this module compares them. On two idle cores the module takes about 1.5 min
+(each subprocess spends about 75 s of CPU time, mostly compiling).
+
+Tolerances: the sharded rollout does the same per-env arithmetic as the one-device one,
+so it must match to 1e-6 (it is bitwise equal on the CPU); PPO's gradient and statistics
+means are sums over envs that the compiler splits into per-device partial sums, so float32
+rounding may differ: parameters must match to 1e-4 after two updates.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import pytest
+
+from jaxenvs import sharding
+
+ROLLOUT_TOL = 1e-6
+PPO_TOL = 1e-4
+
+_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import jax, numpy as np
+    import jaxenvs
+    from jaxenvs import sharding as sh
+    from jaxenvs.agents import ppo
+
+    out_path = sys.argv[1]
+    rollout_meshes = [int(n) for n in sys.argv[2].split(",")]
+    ppo_meshes = [int(n) for n in sys.argv[3].split(",")]
+    assert jax.device_count() == max(rollout_meshes + ppo_meshes), jax.devices()
+    env_id = "CartpoleBalance-v0"
+    benv = jaxenvs.make(env_id, num_envs=8, episode_length=10)  # auto-resets inside
+    cfg = ppo.PPOConfig(total_steps=256, num_envs=8, num_steps=8, updates_per_chunk=1,
+                        update_epochs=1, num_minibatches=2, actor_hidden=(16,),
+                        critic_hidden=(16,))
+    trainer = ppo.make_trainer(jaxenvs.make(env_id, episode_length=10), cfg)
+    arrays, checks = {}, {}
+    for n in rollout_meshes:
+        mesh = sh.make_mesh(n)
+        state, rewards = sh.make_sharded_rollout(benv, mesh, steps=25)(jax.random.key(3))
+        arrays[f"rollout{n}_rewards"] = np.asarray(rewards)
+        arrays[f"rollout{n}_obs"] = np.asarray(state.obs)
+        arrays[f"rollout{n}_qpos"] = np.asarray(state.data.qpos)
+        arrays[f"rollout{n}_time"] = np.asarray(state.time)
+        leaves = jax.tree.leaves(state)
+        checks[f"rollout{n}_split"] = all(sh.is_split(x, mesh) for x in leaves)
+        checks[f"rollout{n}_rewards_split"] = sh.is_split(rewards, mesh, axis=1)
+        checks[f"rollout{n}_devices"] = sh.num_shards((state, rewards))
+    for n in ppo_meshes:
+        mesh = sh.make_mesh(n)
+        init, chunk = sh.shard_trainer_fns(trainer, mesh, cfg.num_envs, num_seeds=1)
+        rs = init(jax.random.split(jax.random.key(0), 1))
+        for _ in range(2):
+            rs, metrics = chunk(rs)
+        for i, leaf in enumerate(jax.tree.leaves(rs.params)):
+            arrays[f"ppo{n}_param{i}"] = np.asarray(leaf)
+        arrays[f"ppo{n}_loss"] = np.asarray(metrics["loss"])
+        arrays[f"ppo{n}_obs"] = np.asarray(rs.env_state.obs)
+        checks[f"ppo{n}_env_split"] = all(
+            sh.is_split(x, mesh, axis=1) for x in jax.tree.leaves(rs.env_state))
+        checks[f"ppo{n}_params_replicated"] = all(
+            sh.is_replicated(x, mesh) for x in jax.tree.leaves(rs.params))
+    if jax.device_count() > 1:
+        try:
+            sh.make_sharded_rollout(jaxenvs.make(env_id, num_envs=7), sh.make_mesh(2), 2)
+        except ValueError as err:
+            checks["uneven_error"] = str(err)
+    np.savez(out_path, **arrays)
+    print("CHECKS " + json.dumps(checks))
+    """
+)
+
+
+def _launch(
+    tmp: Path, devices: int, rollout_meshes: str, ppo_meshes: str
+) -> tuple[subprocess.Popen[str], Path]:
+    out = tmp / f"devices{devices}.npz"
+    env = dict(os.environ)
+    env["XLA_FLAGS"] = (
+        env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
+    ).strip()
+    env["JAX_PLATFORMS"] = "cpu"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SCRIPT, str(out), rollout_meshes, ppo_meshes],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    return proc, out
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Both subprocesses, run in parallel: arrays and checks of meshes 1, 2 and 4 (each
+    compile split so the two take about as long)."""
+    tmp = tmp_path_factory.mktemp("sharding")
+    procs = [_launch(tmp, 2, "1,2", "2"), _launch(tmp, 4, "4", "1,4")]
+    arrays: dict[str, np.ndarray] = {}
+    checks: dict[str, Any] = {}
+    for proc, out in procs:
+        log, _ = proc.communicate(timeout=900)
+        assert proc.returncode == 0, log[-4000:]
+        line = [x for x in log.splitlines() if x.startswith("CHECKS ")][-1]
+        checks.update(json.loads(line[len("CHECKS ") :]))
+        with np.load(out) as data:
+            arrays.update({k: data[k] for k in data.files})
+    return {"arrays": arrays, "checks": checks}
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_sharded_rollout_matches_one_device(runs: dict[str, Any], n: int) -> None:
+    a = runs["arrays"]
+    for name in ("rewards", "obs", "qpos"):
+        np.testing.assert_allclose(
+            a[f"rollout{n}_{name}"], a[f"rollout1_{name}"], atol=ROLLOUT_TOL, rtol=0
+        )
+    # the rollout crossed episode ends (length 10, 25 steps), so auto-reset was exercised
+    assert a["rollout1_time"].max() < 10
+    np.testing.assert_array_equal(a[f"rollout{n}_time"], a["rollout1_time"])
+    assert np.abs(a["rollout1_rewards"]).sum() > 0
+
+
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_sharded_rollout_outputs_stay_sharded(runs: dict[str, Any], n: int) -> None:
+    c = runs["checks"]
+    assert c[f"rollout{n}_split"], f"a final-state leaf is not split over {n} devices"
+    assert c[f"rollout{n}_rewards_split"]
+    assert c[f"rollout{n}_devices"] == n
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_sharded_ppo_matches_one_device(runs: dict[str, Any], n: int) -> None:
+    a = runs["arrays"]
+    params = sorted(k for k in a if k.startswith("ppo1_param"))
+    assert params
+    for k in params:
+        np.testing.assert_allclose(a[k.replace("ppo1", f"ppo{n}")], a[k], atol=PPO_TOL, rtol=0)
+    np.testing.assert_allclose(a[f"ppo{n}_loss"], a["ppo1_loss"], atol=PPO_TOL, rtol=1e-4)
+    np.testing.assert_allclose(a[f"ppo{n}_obs"], a["ppo1_obs"], atol=PPO_TOL, rtol=0)
+
+
+@pytest.mark.parametrize("n", [1, 2, 4])
+def test_sharded_ppo_state_layout(runs: dict[str, Any], n: int) -> None:
+    c = runs["checks"]
+    assert c[f"ppo{n}_env_split"], "env states must stay split over the devices"
+    assert c[f"ppo{n}_params_replicated"], "network params must be replicated"
+
+
+def test_uneven_batch_error_names_both_numbers(runs: dict[str, Any]) -> None:
+    msg = runs["checks"]["uneven_error"]
+    assert "num_envs=7" in msg and "2 devices" in msg
+
+
+# ----------------------------------------------------------------------- in-process units
+def test_validate_batch() -> None:
+    sharding.validate_batch(8, 4)
+    sharding.validate_batch(5, 1)
+    with pytest.raises(ValueError, match=r"num_envs=10 does not divide evenly over 4 devices"):
+        sharding.validate_batch(10, 4)
+
+
+def test_make_mesh_counts() -> None:
+    mesh = sharding.make_mesh()
+    assert mesh.size == jax.device_count() and mesh.axis_names == (sharding.ENV_AXIS,)
+    assert sharding.make_mesh(1).size == 1
+    with pytest.raises(ValueError, match="only"):
+        sharding.make_mesh(jax.device_count() + 1)
+    with pytest.raises(ValueError, match="positive"):
+        sharding.make_mesh(0)
+
+
+def test_shard_batch_places_leaves() -> None:
+    mesh = sharding.make_mesh(1)
+    tree = {"batch": np.arange(6.0).reshape(3, 2), "scalar": np.float32(1.0)}
+    placed = sharding.shard_batch(tree, mesh)
+    assert placed["batch"].sharding.spec == sharding.batch_sharding(mesh).spec
+    assert placed["scalar"].sharding.is_fully_replicated
+    np.testing.assert_array_equal(np.asarray(placed["batch"]), tree["batch"])
+
+
+def test_under_fields_picks_paths() -> None:
+    pred = sharding.under_fields("env_state")
+    tree = {"env_state": {"obs": np.zeros((4, 2))}, "params": {"w": np.zeros((4, 2))}}
+    mesh = sharding.make_mesh(1)
+    sh = sharding.tree_shardings(tree, mesh, pred)
+    assert sh["env_state"]["obs"].spec == sharding.batch_sharding(mesh).spec
+    assert sh["params"]["w"].is_fully_replicated
+
+
+def test_distributed_args_from_environment() -> None:
+    assert sharding.distributed_args({}) is None
+    full = {
+        "JAX_COORDINATOR_ADDRESS": "host0:1234",
+        "JAX_NUM_PROCESSES": "2",
+        "JAX_PROCESS_ID": "1",
+    }
+    assert sharding.distributed_args(full) == {
+        "coordinator_address": "host0:1234",
+        "num_processes": 2,
+        "process_id": 1,
+    }
+    with pytest.raises(ValueError, match="JAX_PROCESS_ID missing"):
+        sharding.distributed_args({k: v for k, v in full.items() if k != "JAX_PROCESS_ID"})
+    with pytest.raises(ValueError, match="0 <= JAX_PROCESS_ID"):
+        sharding.distributed_args({**full, "JAX_PROCESS_ID": "2"})
+    with pytest.raises(ValueError, match="integers"):
+        sharding.distributed_args({**full, "JAX_NUM_PROCESSES": "two"})
+    # launchers JAX detects on its own: initialise with no arguments
+    assert sharding.distributed_args({"SLURM_JOB_ID": "7", "SLURM_NTASKS": "4"}) == {}
+    assert sharding.distributed_args({"OMPI_COMM_WORLD_SIZE": "2"}) == {}
+    assert sharding.distributed_args({"SLURM_JOB_ID": "7", "SLURM_NTASKS": "1"}) is None
+    assert sharding.maybe_initialize_distributed({}) is False
