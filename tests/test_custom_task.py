@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -17,7 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "pendulum"
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLE = ROOT / "examples" / "pendulum"
 sys.path.insert(0, str(EXAMPLE))
 
 import my_pendulum  # noqa: E402  (registers MyPendulum-v0)
@@ -98,6 +100,28 @@ def test_trained_policy_plays(run_dir: Path) -> None:
     assert env_id == CLI_ID and isinstance(env, Pendulum)
     action = jax.jit(act_fn)(jnp.zeros(3), jax.random.key(0))
     assert action.shape == (1,) and bool(jnp.all(jnp.abs(action) <= 1))
+
+
+def test_render_a_video_of_the_policy(run_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "pendulum.gif"
+    argv = [
+        "render", CLI_ID, "--policy", str(run_dir), "--out", str(out),
+        "--steps", "8", "--width", "64", "--height", "48",
+    ]  # fmt: skip
+    assert main(argv) == 0
+    assert out.stat().st_size > 0
+
+
+def test_tutorial_listings_are_the_example_files() -> None:
+    doc = (ROOT / "docs" / "custom_task.md").read_text()
+    listings = re.findall(r"<!-- file: (\S+) -->\n```\w*\n(.*?)```", doc, re.S)
+    assert {path for path, _ in listings} >= {
+        "examples/pendulum/my_pendulum/task.py",
+        "examples/pendulum/my_pendulum/__init__.py",
+        "examples/pendulum/my_pendulum/pendulum.xml",
+    }
+    for path, text in listings:
+        assert text == (ROOT / path).read_text(), f"docs/custom_task.md shows an old {path}"
 
 
 def test_bench_from_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:
