@@ -198,3 +198,26 @@ def test_cli_render_user_errors(tmp_path, monkeypatch, capsys, extra, match):
     err = capsys.readouterr().err
     assert match in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow  # trains a tiny tabular run first (~1 min of CPU)
+def test_cli_render_with_a_trained_policy(tmp_path, capsys):
+    from jaxenvs.agents import runner
+
+    resolved = runner.resolve_config(
+        "CartPole-v0",
+        "qlearning",
+        None,
+        dict(num_envs=2, chunk_steps=20, total_steps=80),
+        dict(num_seeds=1, eval_episodes=1, video=False),
+    )
+    run_dir = tmp_path / "run"
+    runner.train(resolved, run_dir, quiet=True)
+    out = tmp_path / "policy.mp4"
+    size = ["--width", str(W), "--height", str(H)]
+    argv = ["render", "CartPole-v0", "--policy", str(run_dir), "--out", str(out), "--steps", "10"]
+    assert main([*argv, *size]) == 0
+    assert len(imageio.mimread(out)) == 11
+    wrong = ["render", "CartpoleBalance-v0", "--policy", str(run_dir), "--out", str(out)]
+    assert main(wrong) == 2
+    assert "is a run of CartPole-v0" in capsys.readouterr().err
