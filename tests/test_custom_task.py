@@ -102,6 +102,14 @@ def test_trained_policy_plays(run_dir: Path) -> None:
     assert action.shape == (1,) and bool(jnp.all(jnp.abs(action) <= 1))
 
 
+def test_view_policy_must_match_the_id(
+    run_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setenv("DISPLAY", ":99999")  # checked before any window opens
+    assert main(["view", "CartPole-v0", "--policy", str(run_dir)]) == 2
+    assert f"is a run of {CLI_ID}, not CartPole-v0" in capsys.readouterr().err
+
+
 def test_render_a_video_of_the_policy(run_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "pendulum.gif"
     argv = [
