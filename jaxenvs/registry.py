@@ -89,6 +89,7 @@ def _notify_gymnasium(spec: EnvSpec) -> None:
 
 ENTRY_POINT_GROUP = "jaxenvs.envs"
 _plugins_loaded = False
+_builtins_registered = False
 
 
 def load_plugins() -> None:
@@ -99,7 +100,7 @@ def load_plugins() -> None:
     to import is reported with a warning and skipped.
     """
     global _plugins_loaded
-    if _plugins_loaded:
+    if _plugins_loaded or not _builtins_registered:  # a plugin imports a complete jaxenvs
         return
     _plugins_loaded = True
     for entry in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
@@ -213,3 +214,4 @@ def _builtin() -> None:
 
 
 _builtin()
+_builtins_registered = True

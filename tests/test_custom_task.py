@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+import os
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -200,6 +202,30 @@ def test_installed_package_found_through_entry_point(
     finally:
         registry._REGISTRY.pop("ToyPlugin-v0", None)
         sys.modules.pop("toy_plugin", None)
+
+
+def test_installed_package_listed_by_the_command_line(tmp_path: Path) -> None:
+    """A real installed distribution (a dist-info with an entry point) on sys.path."""
+    (tmp_path / "toy_plugin.py").write_text(
+        "import jaxenvs\n"
+        "from my_pendulum.task import Pendulum, PendulumConfig\n"
+        "jaxenvs.register('ToyPlugin-v0', Pendulum, PendulumConfig())\n"
+    )
+    info = tmp_path / "toy_plugin-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: toy-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[{registry.ENTRY_POINT_GROUP}]\ntoy = toy_plugin\n")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(EXAMPLE)]))
+    proc = subprocess.run(
+        [sys.executable, "-W", "error::UserWarning", "-m", "jaxenvs", "list", "--ids"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split()[-1] == "ToyPlugin-v0"
 
 
 def test_unknown_module_prefix_is_a_user_error(capsys: pytest.CaptureFixture[str]) -> None:
