@@ -407,9 +407,11 @@ def is_replicated(x: jax.Array, mesh: Mesh) -> bool:
 
 
 # --------------------------------------------------------------------------- trainers
-#: runner-state fields that hold the env batch (both trainers name them so); every other
-#: leaf (network params, optimiser state, statistics, counters, keys) is replicated.
-ENV_BATCH_FIELDS = ("env_state", "disc_return", "action", "episodes_per_env")
+#: runner-state fields that may hold the env batch (PPO's and the tabular agents' names);
+#: a leaf under one of them is split only if its env axis has ``num_envs`` entries. Every
+#: other leaf (network params, Q-table, optimiser state, statistics, counters, keys) is
+#: replicated.
+ENV_BATCH_FIELDS = ("env_state", "disc_return", "action", "episodes")
 
 
 def shard_trainer_fns(

@@ -227,3 +227,16 @@ def test_distributed_args_from_environment() -> None:
     assert sharding.distributed_args({"OMPI_COMM_WORLD_SIZE": "2"}) == {}
     assert sharding.distributed_args({"SLURM_JOB_ID": "7", "SLURM_NTASKS": "1"}) is None
     assert sharding.maybe_initialize_distributed({}) is False
+
+
+def test_train_command_rejects_more_devices_than_present(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from jaxenvs.cli import main
+
+    too_many = jax.device_count() + 1
+    argv = ["train", "CartPole-v0", "--algo", "qlearning", "--num-envs", "16"]
+    code = main([*argv, "--devices", str(too_many), "--out", str(tmp_path / "run"), "--quiet"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"asked for {too_many} devices" in err and "available" in err

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
-from jaxenvs import registry
+from jaxenvs import registry, sharding
 from jaxenvs.agents import checkpoint
 from jaxenvs.agents.base import CHUNK_METRICS, Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
@@ -362,21 +362,33 @@ class _Programs:
     eval_future: concurrent.futures.Future
 
     def evaluate(self, params: PyTree, key: jax.Array) -> Any:
+        # compiled for one device; a run over several holds its params replicated
+        params = jax.device_put(params, jax.local_devices()[0])
         return self.eval_future.result()(params, key)
 
 
 @functools.lru_cache(maxsize=4)
-def _programs(resolved: ResolvedConfig) -> _Programs:
+def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs:
     """Env, trainer, the jitted ``vmap``s of init and chunk, and the evaluator.
 
     The evaluator is compiled ahead of time on a background thread while the caller
     compiles and runs the training chunks (XLA compiles one program per core, so on a
     small machine this hides most of the evaluator's compile). Cached per config, so a
-    resume or a second run in the same process reuses the compiled programs.
+    resume or a second run in the same process reuses the compiled programs. Over more
+    than one device (``devices``; ``None`` = all), init and chunk split the env batch
+    over a mesh of them (:func:`jaxenvs.sharding.shard_trainer_fns`).
     """
+    mesh = sharding.make_mesh(devices)
     env, trainer = build(resolved)
-    init_fn = jax.jit(jax.vmap(trainer.init))
-    chunk_fn = jax.jit(jax.vmap(trainer.chunk))
+    init_fn: Any
+    chunk_fn: Any
+    if mesh.size > 1:
+        init_fn, chunk_fn = sharding.shard_trainer_fns(
+            trainer, mesh, resolved.agent.num_envs, num_seeds=resolved.train.num_seeds
+        )
+    else:
+        init_fn = jax.jit(jax.vmap(trainer.init))
+        chunk_fn = jax.jit(jax.vmap(trainer.chunk))
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
     evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, None)))
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
@@ -394,6 +406,7 @@ def train(
     quiet: bool = False,
     max_chunks: int | None = None,
     log: Callable[[str], None] | None = None,
+    devices: int | None = None,
 ) -> dict[str, Any]:
     """Train (or continue) a run in ``out_dir``; returns the summary it writes.
 
@@ -405,6 +418,8 @@ def train(
       max_chunks: stop after this many chunks in THIS call (as if interrupted there;
         the run can be resumed); ``None`` runs to the end.
       log: where one-line notices go (default: stderr unless quiet).
+      devices: split each seed's env batch over the first N devices (``None``: all);
+        ``num_envs`` must divide evenly.
 
     Ctrl-C stops after the chunk in flight is discarded: the checkpoint of the last
     finished chunk stays valid, and the results so far are written.
@@ -413,7 +428,7 @@ def train(
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    programs = _programs(resolved)
+    programs = _programs(resolved, devices)
     env, trainer, init_fn, chunk_fn = (
         programs.env,
         programs.trainer,

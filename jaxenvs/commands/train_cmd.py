@@ -27,6 +27,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--num-envs", type=int, help="parallel envs per seed")
     parser.add_argument("--total-steps", type=int, help="env steps per seed")
     parser.add_argument("--eval-episodes", type=int, help="greedy episodes per seed at the end")
+    parser.add_argument(
+        "--devices",
+        type=int,
+        help="split the env batch over the first N devices (default: all; N must divide "
+        "--num-envs)",
+    )
     parser.add_argument("--out", metavar="DIR", help="run directory (default runs/ENV-ALGO-TIME)")
     parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR")
     parser.add_argument("--no-video", action="store_true", help="do not render video.mp4")
@@ -82,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         resolved = dataclasses.replace(
             resolved, train=dataclasses.replace(resolved.train, video=False)
         )
-    summary = runner.train(resolved, out, resume=resume, quiet=args.quiet)
+    summary = runner.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
     line = (
         f"{resolved.algo} on {resolved.env_id}: eval return {summary['eval_mean_return']:.1f} "
         f"+- {summary['eval_std_return']:.1f} ({summary['eval_episodes']} episodes), "
