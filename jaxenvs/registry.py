@@ -175,7 +175,7 @@ def make(
 
 
 def _builtin() -> None:
-    from jaxenvs.tasks import cartpole, reacher
+    from jaxenvs.tasks import cartpole, hexapod, reacher
 
     register(
         "CartPole-v0",
@@ -210,6 +210,18 @@ def _builtin() -> None:
         reacher.ReacherConfig(),
         "2-link planar arm reaching a random target: -distance - control cost, 50 steps",
         reward_threshold=-3.75,
+    )
+    register(
+        "HexapodWalk-v0",
+        hexapod.HexapodWalk,
+        hexapod.WalkConfig(),
+        "6 legs x 3 servos walk to a random target: progress - energy + alive, 1000 steps",
+    )
+    register(
+        "HexapodOneLeg-v0",
+        hexapod.HexapodOneLeg,
+        hexapod.OneLegConfig(),
+        "one hexapod leg on a fixed base: -(tip - target)^2, 100 steps",
     )
 
 

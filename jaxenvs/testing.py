@@ -143,7 +143,13 @@ class TaskChecker:
             _fail("spaces", "reward must be a scalar and terminated a bool")
 
     def check_vmap_matches(self, n: int = 4, atol: float = 1e-5) -> None:
-        """``vmap(step)`` over a batch equals stacked single-env steps."""
+        """``vmap(step)`` over a batch equals stacked single-env steps.
+
+        A task whose step amplifies rounding (e.g. an unconverged contact solve, where
+        the batched program's different reduction order changes a few last bits) may
+        declare a looser ``vmap_atol`` class attribute; a real batching bug is O(1).
+        """
+        atol = max(atol, float(getattr(self.env, "vmap_atol", 0.0)))
         keys = jax.random.split(jax.random.key(7), n)
         states = [self.reset(k) for k in keys]
         acts = [random_actions(self.env, k) for k in jax.random.split(jax.random.key(8), n)]

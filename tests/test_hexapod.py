@@ -1,0 +1,176 @@
+"""Hexapod tasks: standing, falling, reachability, and parity with MuJoCo C.
+
+Each env's ``step`` is jitted once per module and reused by every test (the walker's
+step is the costly compile).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from jaxenvs.tasks.hexapod import (
+    JOINT_RANGE,
+    HexapodOneLeg,
+    HexapodWalk,
+    leg_tip,
+    quat_to_mat,
+)
+
+# Parity tolerances (MJX float32 vs MuJoCo C float64, 100 control steps = 500 physics steps).
+# The leg has no contacts: the two agree to float32 rounding. The walker's contacts are
+# solved by 6 CG iterations, unconverged by design (speed), and MJX's CG line search is
+# not MuJoCo C's, so contact forces differ from the first step on (2 mm of torso motion
+# after one control step); feet that slip integrate that difference over the 5 s. The
+# height must agree closely (both stand on the same floor); the horizontal drift and the
+# joint angles within what a shuffling gait's slip gives (measured: benchmarks/NOTES.md).
+LEG_QPOS_ATOL = 1e-4
+WALK_HEIGHT_ATOL = 0.005  # m, torso height
+WALK_XY_ATOL = 0.06  # m, torso horizontal position after up to 5 s of shuffling
+WALK_JOINT_ATOL = 0.1  # rad, joint angles
+
+
+@pytest.fixture(scope="module")
+def walk():
+    env = HexapodWalk()
+    return env, jax.jit(env.reset), jax.jit(env.step)
+
+
+@pytest.fixture(scope="module")
+def leg():
+    env = HexapodOneLeg()
+    return env, jax.jit(env.reset), jax.jit(env.step)
+
+
+def _mj_rollout(env, qpos, mocap, ctrls):
+    """Step MuJoCo C from ``qpos`` holding each ctrl for ``env.sim.substeps`` steps."""
+    m = env.sim.mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = qpos
+    d.mocap_pos[:] = mocap
+    out = []
+    for ctrl in ctrls:
+        d.ctrl[:] = ctrl
+        for _ in range(env.sim.substeps):
+            mujoco.mj_step(m, d)
+        out.append(d.qpos.copy())
+    return np.array(out)
+
+
+def test_quat_to_mat_matches_mujoco():
+    q = np.array([0.3, -0.5, 0.7, 0.4])
+    q /= np.linalg.norm(q)
+    expected = np.zeros(9)
+    mujoco.mju_quat2Mat(expected, q)
+    np.testing.assert_allclose(quat_to_mat(jnp.asarray(q)), expected.reshape(3, 3), atol=1e-6)
+
+
+def test_walker_stands_for_two_seconds(walk):
+    env, reset, step = walk
+    state = reset(jax.random.key(0))
+    for _ in range(40):  # 40 x 0.05 s
+        state = step(state, jnp.zeros(18))
+        assert not bool(state.terminated)
+    assert 0.12 < float(state.data.qpos[2]) < 0.14
+    assert float(jnp.abs(state.data.qvel).max()) < 0.05  # settled, not jittering
+    up = quat_to_mat(state.data.qpos[3:7])[2, 2]
+    assert float(up) > 0.99
+
+
+def test_walker_pushed_over_terminates(walk):
+    env, reset, step = walk
+    state = reset(jax.random.key(1))
+    flipped = state.data.qpos.at[3:7].set(jnp.array([0.0, 1.0, 0.0, 0.0]))  # 180 deg about x
+    state = state.replace(data=state.data.replace(qpos=flipped.at[2].set(0.3)))
+    state = step(state, jnp.zeros(18))
+    assert bool(state.terminated)
+    assert float(state.obs[39]) > 0.9  # gravity points up in the body frame
+
+
+def test_walker_observation_and_reward_terms(walk):
+    env, reset, step = walk
+    state = reset(jax.random.key(2))
+    target = np.asarray(state.data.mocap_pos[0, :2])
+    assert 1.0 <= np.linalg.norm(target) <= 3.0
+    direction = np.asarray(state.obs[46:49])
+    assert abs(np.linalg.norm(direction) - 1.0) < 1e-5
+    state2 = step(state, jnp.zeros(18))
+    d0 = np.linalg.norm(target - np.asarray(state.data.qpos[:2]))
+    d1 = float(state2.info["distance"])
+    assert abs(float(state2.info["progress"]) - (d0 - d1) / 0.05) < 1e-3
+
+
+def test_walker_parity_with_mujoco(walk):
+    env, reset, step = walk
+    state = reset(jax.random.key(3))
+    qpos0 = np.asarray(state.data.qpos, np.float64)
+    mocap = np.asarray(state.data.mocap_pos, np.float64)
+    t = np.arange(100)[:, None] * 0.05
+    phase = np.arange(18)[None, :] * 0.7
+    actions = (0.2 * np.sin(2 * np.pi * 0.5 * t + phase)).astype(np.float32)
+    mjx_qpos = []
+    for a in actions:
+        state = step(state, jnp.asarray(a))
+        mjx_qpos.append(np.asarray(state.data.qpos))
+    mjx_qpos = np.array(mjx_qpos)
+    ctrls = actions * np.asarray(JOINT_RANGE)
+    c_qpos = _mj_rollout(env, qpos0, mocap, ctrls)
+    err = np.abs(mjx_qpos - c_qpos)
+    print(
+        f"walker parity: xy {err[:, :2].max():.4f} z {err[:, 2].max():.4f} joints "
+        f"{err[:, 7:].max():.4f}, first step xy {err[0, :2].max():.4f}"
+    )
+    assert err[:, 2].max() < WALK_HEIGHT_ATOL
+    assert err[:, :2].max() < WALK_XY_ATOL
+    assert err[:, 7:].max() < WALK_JOINT_ATOL
+
+
+def test_one_leg_target_is_reachable(leg):
+    env, reset, step = leg
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.key(4), 512))
+    target_q = np.asarray(states.extras)
+    assert np.all(np.abs(target_q) <= np.asarray(JOINT_RANGE[:3]) + 1e-6)
+    targets = np.asarray(states.obs[:, 6:9])
+    fk = np.asarray(jax.vmap(leg_tip)(states.extras))
+    np.testing.assert_allclose(fk, targets, atol=1e-6)
+    # forward kinematics agrees with MuJoCo's own kinematics of the leg model
+    m = env.sim.mj_model
+    d = mujoco.MjData(m)
+    tip = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "tip")
+    hip = m.body_pos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "base")]
+    for q, target, mocap in zip(
+        target_q[:20], targets[:20], np.asarray(states.data.mocap_pos)[:20], strict=True
+    ):
+        d.qpos[:] = q
+        mujoco.mj_kinematics(m, d)
+        np.testing.assert_allclose(d.site_xpos[tip], mocap[0], atol=1e-5)
+        np.testing.assert_allclose(d.site_xpos[tip] - hip, target, atol=1e-5)
+    # the workspace is really covered: targets spread over the leg's reach
+    assert np.ptp(targets[:, 2]) > 0.2 and np.ptp(targets[:, 1]) > 0.1
+
+
+def test_one_leg_servo_reaches_target(leg):
+    env, reset, step = leg
+    state = reset(jax.random.key(5))
+    action = jnp.clip(state.extras / JOINT_RANGE[:3], -1.0, 1.0)
+    for _ in range(40):
+        state = step(state, action)
+    assert float(state.info["distance"]) < 0.01  # 1 cm: the servo's sag under gravity
+    assert float(state.reward) > -1e-4
+
+
+def test_one_leg_parity_with_mujoco(leg):
+    env, reset, step = leg
+    state = reset(jax.random.key(6))
+    qpos0 = np.asarray(state.data.qpos, np.float64)
+    mocap = np.asarray(state.data.mocap_pos, np.float64)
+    actions = np.asarray(jax.random.uniform(jax.random.key(7), (100, 3), minval=-1, maxval=1))
+    mjx_qpos = []
+    for a in actions:
+        state = step(state, jnp.asarray(a))
+        mjx_qpos.append(np.asarray(state.data.qpos))
+    c_qpos = _mj_rollout(env, qpos0, mocap, actions * np.asarray(JOINT_RANGE[:3]))
+    np.testing.assert_allclose(np.array(mjx_qpos), c_qpos, atol=LEG_QPOS_ATOL)
