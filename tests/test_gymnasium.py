@@ -342,3 +342,20 @@ def test_vector_episode_statistics_wrapper(short_vec):
         *_, info = envs.step(np.ones(N, np.int64))
     assert info["_episode"].all()
     np.testing.assert_array_equal(info["episode"]["l"], np.full(N, SHORT))
+
+
+# ----------------------------------------------------------------- Stable-Baselines3
+@pytest.mark.slow
+def test_stable_baselines3_ppo_learns_cartpole():
+    """The README's example: SB3's make_vec_env + PPO on the facade, evaluated greedily."""
+    sb3 = pytest.importorskip("stable_baselines3")
+    import torch
+
+    torch.set_num_threads(1)
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    venv = make_vec_env("jaxenvs/CartPole-v0", n_envs=4, seed=0)
+    model = sb3.PPO("MlpPolicy", venv, seed=0, verbose=0).learn(total_timesteps=40_000)
+    mean, _ = evaluate_policy(model, gym.make("jaxenvs/CartPole-v0"), n_eval_episodes=5)
+    assert mean >= 400.0
