@@ -128,11 +128,13 @@ def test_missing_algorithm_module_is_reported(monkeypatch):
 
 
 def test_train_eval_compare(tmp_path, capsys):
+    # --no-compile-cache: the tests must not switch on the persistent cache process-wide
     runs = []
     for algo in ("qlearning", "sarsa"):
         out = tmp_path / algo
         code = cli.main(
-            ["train", "--config", _chain_file(tmp_path, algo), "--out", str(out), "--quiet"]
+            ["train", "--config", _chain_file(tmp_path, algo), "--out", str(out)]
+            + ["--quiet", "--no-compile-cache"]
         )
         assert code == 0, capsys.readouterr().err
         summary = json.loads((out / "summary.json").read_text())
@@ -155,5 +157,5 @@ def test_train_eval_compare(tmp_path, capsys):
     assert cli.main(["train", "--resume", runs[0], "--seed", "3"]) == 2
     assert "--seed" in capsys.readouterr().err
     # resuming a finished run re-evaluates and keeps the result
-    assert cli.main(["train", "--resume", runs[0], "--quiet"]) == 0
+    assert cli.main(["train", "--resume", runs[0], "--quiet", "--no-compile-cache"]) == 0
     assert json.loads((tmp_path / "qlearning" / "summary.json").read_text())["chunks"] == 5
