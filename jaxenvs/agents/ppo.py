@@ -155,8 +155,8 @@ class RunningStats(NamedTuple):
 
 def stats_init(shape: tuple[int, ...]) -> RunningStats:
     return RunningStats(
-        jnp.zeros(shape, jnp.float32), jnp.ones(shape, jnp.float32), jnp.asarray(1e-4)
-    )
+        jnp.zeros(shape, jnp.float32), jnp.ones(shape, jnp.float32), jnp.asarray(1e-4, jnp.float32)
+    )  # strongly typed: a weak count would differ from a restored one and recompile
 
 
 def stats_update(stats: RunningStats, batch: jax.Array) -> RunningStats:
@@ -209,6 +209,7 @@ class Transition(NamedTuple):
     done: jax.Array
     final_return: jax.Array
     final_length: jax.Array
+    diverged: jax.Array
 
 
 def _sample_categorical(out: Any, key: jax.Array) -> jax.Array:
@@ -329,6 +330,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
             done=done,
             final_return=nxt.info["final_return"],
             final_length=nxt.info["final_length"],
+            diverged=nxt.info["diverged"],
         )
         rs = rs._replace(
             obs_stats=obs_stats,
@@ -403,6 +405,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
             "ret_sum": jnp.sum(jnp.where(done, traj.final_return, 0.0)),
             "ret_max": jnp.max(jnp.where(done, traj.final_return, -jnp.inf)),
             "len_sum": jnp.sum(jnp.where(done, traj.final_length, 0)),
+            "diverged": jnp.sum(traj.diverged).astype(jnp.int32),
         }
         rs = rs._replace(
             params=params,
@@ -424,6 +427,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
             "max_return": jnp.where(n > 0, m["ret_max"].max(), nan),
             "mean_length": jnp.where(n > 0, m["len_sum"].sum() / jnp.maximum(n, 1), nan),
             "episodes_in_chunk": n.astype(jnp.int32),
+            "diverged": m["diverged"].sum(),
             **{k: m[k][-1] for k in ("loss", "policy_loss", "value_loss", "entropy", "approx_kl")},
         }
         return rs, metrics

@@ -297,7 +297,8 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
 
     ``steps_per_chunk`` is ``chunk_steps * num_envs`` env steps; ``num_chunks`` covers
     ``total_steps``. Chunk metrics add ``epsilon`` (mean over envs), ``sum_length``,
-    ``top_lengths`` and ``active_envs`` to :data:`jaxenvs.agents.base.CHUNK_METRICS`.
+    ``top_lengths``, ``active_envs`` and ``diverged`` (episodes ended by physics
+    divergence) to :data:`jaxenvs.agents.base.CHUNK_METRICS`.
     """
     low, high = _check_env(env, config)
     sarsa = isinstance(config, SarsaConfig)
@@ -329,7 +330,7 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
 
     def step(
         ts: TabularState, _: None
-    ) -> tuple[TabularState, tuple[jax.Array, jax.Array, jax.Array]]:
+    ) -> tuple[TabularState, tuple[jax.Array, jax.Array, jax.Array, jax.Array]]:
         key, act_key, next_key, boot_key = jax.random.split(ts.key, 4)
         s = states_of(ts.env_state.obs)
         active = active_mask(ts.episodes)
@@ -354,11 +355,13 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
         env_steps = ts.env_steps + jnp.sum(active).astype(jnp.int32)
         finished = done & active
         out = (finished, nxt.info["final_return"], nxt.info["final_length"])
-        return TabularState(q, nxt, next_action, episodes, env_steps, key), out
+        diverged = nxt.info["diverged"] & active
+        return TabularState(q, nxt, next_action, episodes, env_steps, key), (*out, diverged)
 
     def chunk(ts: TabularState) -> tuple[TabularState, dict[str, jax.Array]]:
-        ts, (done, ret, length) = jax.lax.scan(step, ts, None, length=config.chunk_steps)
+        ts, (done, ret, length, diverged) = jax.lax.scan(step, ts, None, length=config.chunk_steps)
         metrics = episode_metrics(done, ret, length)
+        metrics["diverged"] = jnp.sum(diverged).astype(jnp.int32)
         metrics["env_steps"] = ts.env_steps
         metrics["episodes"] = jnp.sum(ts.episodes)
         metrics["epsilon"] = jnp.mean(epsilon_at(config, ts.episodes))
