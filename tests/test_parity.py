@@ -77,6 +77,9 @@ CASES = [
     ParityCase("CartPole-v0", qpos_atol=5e-5, qvel_atol=1e-4, overrides=(("x_threshold", 1e3),)),
     # angles up to 9 rad, velocities up to 22 rad/s: drift qpos <= 2.9e-6, qvel <= 2.5e-6
     ParityCase("Reacher-v0", qpos_atol=3e-5, qvel_atol=3e-5),
+    # position servos, gravity, no contacts: drift qpos <= 4.1e-7, qvel <= 8.1e-6;
+    # a 1% gear error: qpos >= 2.8e-2 (the walker's contacts: tests/test_hexapod.py)
+    ParityCase("HexapodOneLeg-v0", qpos_atol=5e-6, qvel_atol=1e-4),
 ]
 
 
