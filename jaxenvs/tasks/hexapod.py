@@ -22,7 +22,7 @@ limit rows: the servo range is the joint range); Euler integration with damping 
 the CG solver (``solver_iterations`` and ``ls_iterations`` from the config) with a SPARSE
 mass matrix, so that no step calls LAPACK: MJX's Newton solver and its dense
 factorisations call LAPACK's batched Cholesky, which deadlocks XLA's CPU thread pool on a
-2-core machine at batch >= 128 (the stall recorded in /work/shared/FINDINGS.md).
+2-core machine at batch >= 128 (the stall seen in early MJX probes; benchmarks/NOTES.md).
 
 Params (``HexapodParams``): ``model`` holds MJX model fields ``body_mass``,
 ``body_inertia``, ``dof_damping``, ``actuator_gainprm``, ``actuator_biasprm`` and
