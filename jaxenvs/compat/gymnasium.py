@@ -283,11 +283,15 @@ def check_action(env: Env, action: Any, num_envs: int | None = None) -> np.ndarr
     return arr.astype(np.float32, copy=False)
 
 
+def _display_available() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def _check_render_mode(render_mode: str | None, human_ok: bool = False) -> None:
     if render_mode is None or render_mode in RENDER_MODES:
         return
     if render_mode == "human":
-        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        if not _display_available():
             raise ValueError(
                 "render_mode='human' needs a display and none was found (DISPLAY and "
                 "WAYLAND_DISPLAY are unset); use render_mode='rgb_array' (frames, videos "
@@ -357,8 +361,11 @@ class JaxEnv(gymnasium.Env):
         self.observation_space = self.jax_env.observation_space
         self.action_space = self.jax_env.action_space
         self.render_mode = render_mode
+        # "human" is offered (and so exercised by Gymnasium's env checker) only where a
+        # display exists; the class metadata always lists it so gymnasium.make passes it on.
+        human = ["human"] if _display_available() else []
         self.metadata = {
-            "render_modes": [*RENDER_MODES, "human"],
+            "render_modes": [*RENDER_MODES, *human],
             "render_fps": _render_fps(self.jax_env),
         }
         self._render_args = (width, height, camera)
