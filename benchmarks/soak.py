@@ -94,7 +94,8 @@ def make_block(benv: BatchedEnv, steps: int) -> Any:
             for k in ("nonfinite_obs", "nonfinite_reward", "diverged", "nan_actions", "episodes")
         }
         c0["max_abs_obs"] = jnp.zeros((), jnp.float32)
-        (state, c), _ = jax.lax.scan(body, (state, c0), jax.random.split(key, steps))
+        keys = jax.random.split(key, steps)
+        (state, c), _ = jax.lax.scan(body, (state, c0), keys, unroll=benv.scan_unroll)
         return state, c
 
     return jax.jit(block, donate_argnums=0)

@@ -30,7 +30,9 @@ def rollout(env_id: str, num_envs: int, steps: int) -> None:
             state = benv.step(state, action)
             return state, (state.done, state.info["final_return"])
 
-        state, (done, ret) = jax.lax.scan(body, state, jax.random.split(run_key, steps))
+        keys = jax.random.split(run_key, steps)
+        # scan_unroll: the task's measured best unroll of the rollout loop
+        state, (done, ret) = jax.lax.scan(body, state, keys, unroll=benv.scan_unroll)
         episodes = done.sum()
         mean_ret = jnp.where(done, ret, 0.0).sum() / jnp.maximum(episodes, 1)
         return episodes, mean_ret

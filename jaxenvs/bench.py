@@ -160,7 +160,8 @@ def _scan_fn(benv: BatchedEnv, mode: str, steps: int) -> Callable[[State, jax.Ar
         def body(s: State, k: jax.Array) -> tuple[State, None]:
             return one(s, k), None
 
-        state, _ = jax.lax.scan(body, state, jax.random.split(key, steps))
+        keys = jax.random.split(key, steps)
+        state, _ = jax.lax.scan(body, state, keys, unroll=benv.scan_unroll)
         return state
 
     return run

@@ -123,6 +123,14 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: tuple of task-specific info keys, fixed per task.
     metric_keys: tuple[str, ...] = ()
 
+    #: how many env steps a rollout ``lax.scan`` should unroll (``scan(..., unroll=...)``).
+    #: A speed/compile-time trade-off measured per task (``benchmarks/NOTES.md``): for the
+    #: tiny cartpole an unrolled loop body lets XLA fuse across steps and roughly doubles
+    #: CPU throughput at a few seconds more compile; for the hexapod it would multiply an
+    #: already long compile. The library's own rollouts (benchmarks, sharded rollouts)
+    #: use it; pass it to your own scans the same way.
+    scan_unroll: int = 1
+
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         self.config = config
         self.sim = sim
@@ -338,6 +346,7 @@ class BatchedEnv:
     default_params = property(lambda self: self.env.default_params)
     episode_length = property(lambda self: self.env.episode_length)
     config = property(lambda self: self.env.config)
+    scan_unroll = property(lambda self: self.env.scan_unroll)
 
     def _reset_batch(self, keys: jax.Array, params: Params) -> State:
         if self.randomize and params is None:

@@ -325,7 +325,8 @@ def make_sharded_rollout(
             s = constrain_batch(benv.step(s, action), mesh)
             return s, s.reward
 
-        state, rewards = jax.lax.scan(body, state, jax.random.split(run_key, steps))
+        keys = jax.random.split(run_key, steps)
+        state, rewards = jax.lax.scan(body, state, keys, unroll=benv.scan_unroll)
         return state, rewards
 
     key = jax.random.key(0)
@@ -360,7 +361,8 @@ def make_sharded_steps(
             action = jax.lax.with_sharding_constraint(policy(s, k), batch_sharding(mesh))
             return constrain_batch(benv.step(s, action), mesh), None
 
-        return jax.lax.scan(body, state, jax.random.split(key, steps))[0]
+        keys = jax.random.split(key, steps)
+        return jax.lax.scan(body, state, keys, unroll=benv.scan_unroll)[0]
 
     reset = sharded_reset(benv, mesh)
     key = jax.random.key(0)

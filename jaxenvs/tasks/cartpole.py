@@ -139,6 +139,8 @@ class CartPole(Env[CartPoleConfig]):
     * Timing: 0.02 s per step (MJX semi-implicit Euler, one 0.02 s substep).
     """
 
+    scan_unroll = 5
+
     def __init__(self, config: CartPoleConfig | None = None) -> None:
         config = config or CartPoleConfig()
         super().__init__(config, _cartpole_sim(config.timestep, config.substeps))
@@ -354,6 +356,8 @@ class CartpoleBalance(Env[BalanceConfig]):
       velocities ~ 0.01 N(0, 1).
     * Timing: 0.01 s per step, one Euler substep.
     """
+
+    scan_unroll = 5
 
     def __init__(self, config: BalanceConfig | None = None) -> None:
         config = config or BalanceConfig()
