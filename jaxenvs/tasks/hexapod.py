@@ -172,7 +172,9 @@ class WalkConfig(HexapodRandomization):
       alive_bonus: reward per step while not fallen.
       min_height: the episode ends when the body's height falls below this (m).
       min_upright: ... or when the body's z axis' vertical component falls below this
-        (0 = lying on its side; negative = flipped).
+        (0.7: tilted more than ~45 degrees; 0 would be lying on its side). With 0, PPO
+        learned to scramble forward at 1.35 m/s tilted ~66 degrees on average, which is
+        falling forward rather than walking (benchmarks/RESULTS.md).
       init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
       init_height: initial body height (m): the feet start just above the floor.
     """
@@ -185,7 +187,7 @@ class WalkConfig(HexapodRandomization):
     energy_weight: float = 0.002
     alive_bonus: float = 0.05
     min_height: float = 0.06
-    min_upright: float = 0.0
+    min_upright: float = 0.7
     init_joint_noise: float = 0.05
     init_height: float = 0.14
 
@@ -213,7 +215,8 @@ class HexapodWalk(Env[WalkConfig]):
       + alive_bonus`` with ``d`` the horizontal body-target distance; the progress term is
       the decrease of the distance per step expressed in m/s.
     * Termination: height < ``min_height`` or the body's up axis z-component <
-      ``min_upright`` (on its side or flipped). Truncation: 1000 steps.
+      ``min_upright`` (tilted more than ~45 degrees, on its side or flipped).
+      Truncation: 1000 steps.
     * Start: body at 0.14 m with a random yaw, joints uniform in +-0.05 rad around the
       stance, at rest; target (a mocap marker) at a distance uniform in 1-3 m in a random
       direction.
