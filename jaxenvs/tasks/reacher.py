@@ -34,9 +34,10 @@
   the solved threshold); Euler 2 x 0.01 s halves that (5.5 mm, 0.036) at half the
   throughput. ``timestep=0.01, substeps=2`` selects it.
 * Physics: no contacts, no constraints, gravity off (no torque about vertical hinges),
-  Euler with damping integrated implicitly, dense Jacobian (what ``auto`` picks for 2
-  dofs; a raw ``mjx.step`` probe at 16384 envs on the 2-core CPU ran 470k physics
-  steps/s dense, 444k sparse). Each physics step runs MJX's stages in the order
+  Euler with damping integrated implicitly, sparse mass matrix (``jacobian="sparse"``:
+  MJX factorises M with plain JAX ops; the dense path calls LAPACK's Cholesky per step,
+  and the batched env ran 1.33-1.38x faster sparse at 4096-16384 envs on the 2-core
+  CPU, benchmarks/NOTES.md). Each physics step runs MJX's stages in the order
   actuation -> acceleration -> Euler -> position -> velocity, which is ``mjx.step``'s
   work rotated by two stages: the same arithmetic (checked against ``mujoco.mj_step`` in
   ``tests/test_parity.py``), but the data ends with the kinematics of the NEW state, so
