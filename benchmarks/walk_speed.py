@@ -25,6 +25,7 @@ import numpy as np
 
 import jaxenvs
 from jaxenvs.agents import runner
+from jaxenvs.tasks.hexapod import quat_to_mat
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -60,8 +61,8 @@ def main(argv: list[str] | None = None) -> None:
             a = jax.vmap(act)(s.obs, jax.random.split(k, args.envs))
             s = jax.vmap(env.step)(s, a)
             progress = jnp.where(up, s.info["progress"], 0.0)
-            q = s.data.qpos[:, 3:7]  # body quaternion (w, x, y, z)
-            upright = jnp.where(up, 1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2), 0.0)
+            body_up_z = jax.vmap(quat_to_mat)(s.data.qpos[:, 3:7])[:, 2, 2]  # the task's up-axis z
+            upright = jnp.where(up, body_up_z, 0.0)
             pose = (s.data.qpos[0], s.data.mocap_pos[0], s.data.mocap_quat[0])
             return (s, up & ~s.terminated), (progress, upright, up, pose)
 

@@ -36,8 +36,8 @@
 * Physics: no contacts, no constraints, gravity off (no torque about vertical hinges),
   Euler with damping integrated implicitly, sparse mass matrix (``jacobian="sparse"``:
   MJX factorises M with plain JAX ops; the dense path calls LAPACK's Cholesky per step,
-  and the batched env ran 1.33-1.38x faster sparse at 4096-16384 envs on the 2-core
-  CPU, benchmarks/NOTES.md). Each physics step runs MJX's stages in the order
+  and the batched env ran 1.2x faster sparse at 4096 envs and 1.35x at 16384 on the
+  2-core CPU, benchmarks/NOTES.md). Each physics step runs MJX's stages in the order
   actuation -> acceleration -> Euler -> position -> velocity, which is ``mjx.step``'s
   work rotated by two stages: the same arithmetic (checked against ``mujoco.mj_step`` in
   ``tests/test_parity.py``), but the data ends with the kinematics of the NEW state, so
