@@ -5,6 +5,9 @@ keyed by its HLO, the JAX/XLA versions and the device, so a second run of the sa
 and config skips compiling. The command line calls :func:`enable` unless given
 ``--no-compile-cache``; library users opt in by calling it themselves.
 
+While it is on, the trainers' traced programs are stored too, in its ``programs/``
+subdirectory (:mod:`jaxenvs.program_cache`), so that a warm run skips tracing as well.
+
 The directory is per user: ``$JAXENVS_CACHE_DIR`` if set, else
 ``$XDG_CACHE_HOME/jaxenvs/jax-compile`` (``~/.cache/jaxenvs/jax-compile``).
 """
@@ -17,6 +20,7 @@ from pathlib import Path
 import jax
 
 ENV_VAR = "JAXENVS_CACHE_DIR"
+_ACTIVE: list[Path] = []  # the directory enable() turned on, if any
 
 
 def default_cache_dir() -> Path:
@@ -49,9 +53,16 @@ def enable(path: str | Path | None = None, min_compile_secs: float = 0.0) -> Pat
     jax.config.update("jax_compilation_cache_dir", str(cache))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_secs))
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    _ACTIVE[:] = [cache]
     return cache
+
+
+def active() -> Path | None:
+    """The directory :func:`enable` turned on in this process (``None``: off)."""
+    return _ACTIVE[0] if _ACTIVE else None
 
 
 def disable() -> None:
     """Turn the persistent compilation cache off for this process."""
     jax.config.update("jax_compilation_cache_dir", None)
+    _ACTIVE.clear()

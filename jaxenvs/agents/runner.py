@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
-from jaxenvs import registry, sharding
+from jaxenvs import compile_cache, program_cache, registry, sharding
 from jaxenvs.agents import checkpoint
 from jaxenvs.agents.base import CHUNK_METRICS, Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
@@ -376,26 +376,70 @@ def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs
     small machine this hides most of the evaluator's compile). Cached per config, so a
     resume or a second run in the same process reuses the compiled programs. Over more
     than one device (``devices``; ``None`` = all), init and chunk split the env batch
-    over a mesh of them (:func:`jaxenvs.sharding.shard_trainer_fns`).
+    over a mesh of them (:func:`jaxenvs.sharding.shard_trainer_fns`). On one device,
+    with the compile cache on, the three programs are stored traced and loaded on later
+    runs (:func:`_program_store`), so a warm start skips tracing as well as compiling.
     """
     mesh = sharding.make_mesh(devices)
     env, trainer = build(resolved)
-    init_fn: Any
-    chunk_fn: Any
+    init_fn: Any = None
+    chunk_fn: Any = None
     if mesh.size > 1:
         init_fn, chunk_fn = sharding.shard_trainer_fns(
             trainer, mesh, resolved.agent.num_envs, num_seeds=resolved.train.num_seeds
         )
-    else:
+    evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
+    keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
+    key_shape = jax.eval_shape(lambda: eval_key(0))
+    store = _program_store(resolved, env, trainer) if mesh.size == 1 else None
+    if store is not None:
+        stored_init = store(jax.vmap(trainer.init), (keys,), "init")
+        init_fn = stored_init.call
+        template = stored_init.out_shape
+        chunk_fn = store(jax.vmap(trainer.chunk), (template,), "chunk").call
+        params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), template)
+
+        def compile_evaluate() -> Any:
+            evaluate = jax.vmap(evaluator, in_axes=(0, None))
+            program = store(evaluate, (params_shape, key_shape), "eval")
+            return program.call.lower(params_shape, key_shape).compile()
+
+        return _Programs(env, trainer, init_fn, chunk_fn, _COMPILER.submit(compile_evaluate))
+    if mesh.size == 1:
         init_fn = jax.jit(jax.vmap(trainer.init))
         chunk_fn = jax.jit(jax.vmap(trainer.chunk))
-    evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
     evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, None)))
-    keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), jax.eval_shape(init_fn, keys))
-    key_shape = jax.eval_shape(lambda: eval_key(0))
     future = _COMPILER.submit(lambda: evaluate.lower(params_shape, key_shape).compile())
     return _Programs(env, trainer, init_fn, chunk_fn, future)
+
+
+def _program_store(
+    resolved: ResolvedConfig, env: Env, trainer: Trainer
+) -> Callable[[Callable[..., Any], tuple[Any, ...], str], program_cache.Program] | None:
+    """Loads/stores traced programs next to the compile cache (``None``: not used).
+
+    Used only while the compile cache is on and for tasks and trainers defined in this
+    package, whose code the stored programs' keys cover (see :mod:`jaxenvs.program_cache`).
+    """
+    cache = compile_cache.active()
+    factory = registry.spec(resolved.env_id).factory
+    owners = (type(env).__module__, type(trainer).__module__, getattr(factory, "__module__", ""))
+    if cache is None or not all(str(m).startswith("jaxenvs.") for m in owners):
+        return None
+    settings = resolved.to_dict()
+    settings["train"] = {k: v for k, v in settings["train"].items() if k != "seed"}
+
+    def store(fn: Callable[..., Any], args: tuple[Any, ...], name: str) -> program_cache.Program:
+        return program_cache.load_or_export(
+            fn,
+            args,
+            name=f"{resolved.algo}-{resolved.env_id}-{name}",
+            config=settings,
+            directory=cache / program_cache.SUBDIR,
+        )
+
+    return store
 
 
 def train(

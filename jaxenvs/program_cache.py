@@ -1,0 +1,192 @@
+"""Traced programs kept on disk (``jax.export``), beside the compile cache.
+
+JAX's persistent compilation cache (:mod:`jaxenvs.compile_cache`) lets a second run skip
+XLA's compile, but not tracing: the Python that builds the program (the MJX step inside
+``vmap`` and ``scan``, the PPO update, the evaluator) runs again in every process, and on
+a small CPU that is most of a warm start (about 7 s of CartPole-v0's PPO run, measured in
+``benchmarks/RESULTS.md``). This module serialises the traced program itself with
+``jax.export`` the first time and, on later runs, loads it instead of tracing; its
+compile then hits the persistent cache as before.
+
+A stored program is looked up by a key that covers everything the trace depends on: a
+caller-chosen name and config, the argument shapes, dtypes and tree structure, the
+versions of jax, jaxlib, mujoco, flax and optax, the backend and device kind, the x64
+flag, and a digest of every source and model file of the jaxenvs package. Anything else a
+program closes over must be in the caller's config (the runner only uses this for tasks
+defined in the package). A file that cannot be read back is reported, replaced and never
+trusted; writes are atomic.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import importlib.metadata
+import json
+import os
+import pickle
+import tempfile
+import warnings
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jax
+
+#: subdirectory of the compile-cache directory that holds exported programs.
+SUBDIR = "programs"
+_PACKAGE = Path(__file__).resolve().parent
+_SOURCE_SUFFIXES = (".py", ".xml", ".yaml")
+_VERSIONED = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax")
+
+
+@functools.lru_cache(maxsize=1)
+def source_digest() -> str:
+    """SHA-256 over the package's source, model and config files (paths and contents)."""
+    h = hashlib.sha256()
+    for path in sorted(_PACKAGE.rglob("*")):
+        if path.suffix in _SOURCE_SUFFIXES and "__pycache__" not in path.parts:
+            h.update(str(path.relative_to(_PACKAGE)).encode())
+            h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def _environment() -> dict[str, Any]:
+    versions: dict[str, str | None] = {}
+    for name in _VERSIONED:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = None
+    device = jax.devices()[0]
+    return {
+        "versions": versions,
+        "platform": device.platform,
+        "device_kind": device.device_kind,
+        "x64": bool(jax.config.read("jax_enable_x64")),
+        "source": source_digest(),
+    }
+
+
+def _aval_text(tree: Any) -> list[str]:
+    """``path: dtype[shape]`` per leaf (the treedef's own text holds object addresses)."""
+    leaves = jax.tree_util.tree_flatten_with_path(tree)[0]
+    return [f"{jax.tree_util.keystr(p)}: {x.dtype}{list(x.shape)}" for p, x in leaves]
+
+
+def program_key(name: str, config: Mapping[str, Any], args: tuple[Any, ...]) -> str:
+    """The hex key of a program: name, config, argument avals and tree, environment."""
+    record = {
+        "name": name,
+        "config": config,
+        "args": _aval_text(args),
+        "env": _environment(),
+    }
+    return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()
+
+
+@dataclasses.dataclass(frozen=True)
+class Program:
+    """A loaded or freshly exported program.
+
+    ``call`` is jitted (``.lower(...).compile()`` works on it) and takes and returns the
+    same pytrees as the original function; ``out_shape`` is its output as
+    ``jax.ShapeDtypeStruct`` leaves; ``loaded`` says whether it came from disk.
+    """
+
+    call: Any  # a jitted function
+    out_shape: Any
+    loaded: bool
+
+
+def _export(fn: Callable[..., Any], args: tuple[Any, ...]) -> tuple[Any, Any]:
+    """``jax.export`` of ``fn`` over flat leaves (custom pytree nodes stay out of the file)."""
+    leaves, in_tree = jax.tree.flatten(args)
+    box: list[Any] = []
+
+    def flat(*xs: Any) -> list[Any]:
+        out_leaves, out_tree = jax.tree.flatten(fn(*jax.tree.unflatten(in_tree, list(xs))))
+        box.append(out_tree)
+        return out_leaves
+
+    exported = jax.export.export(jax.jit(flat))(*leaves)
+    return exported, box[0]
+
+
+def _wrap(exported: Any, in_tree: Any, out_tree: Any, loaded: bool) -> Program:
+    @jax.jit
+    def call(*args: Any) -> Any:
+        leaves, tree = jax.tree.flatten(args)
+        if tree != in_tree:
+            raise ValueError(f"arguments {tree} do not match the stored program's {in_tree}")
+        return jax.tree.unflatten(out_tree, exported.call(*leaves))
+
+    shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in exported.out_avals]
+    return Program(call, jax.tree.unflatten(out_tree, shapes), loaded)
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _read(path: Path) -> tuple[Any, Any] | None:
+    """(exported, out_tree) from ``path``, or ``None`` if it is absent or unreadable."""
+    if not path.exists():
+        return None
+    try:
+        blob = pickle.loads(path.read_bytes())
+        exported = jax.export.deserialize(bytearray(blob["module"]))
+        return exported, blob["out_tree"]
+    except Exception as err:  # noqa: BLE001 - any damage means: trace again
+        warnings.warn(
+            f"ignoring unreadable stored program {path} ({type(err).__name__}: {err}); "
+            "tracing again",
+            stacklevel=3,
+        )
+        return None
+
+
+def load_or_export(
+    fn: Callable[..., Any],
+    args: tuple[Any, ...],
+    *,
+    name: str,
+    config: Mapping[str, Any],
+    directory: str | Path,
+) -> Program:
+    """``fn`` (pure, jittable) as a :class:`Program`, loaded from ``directory`` if stored.
+
+    Args:
+      fn: the function; everything it closes over must be determined by ``config`` and
+        the package's files (see the module docstring).
+      args: example arguments (arrays or ``jax.ShapeDtypeStruct``; only shapes, dtypes
+        and the tree structure are used).
+      name: what the program is (part of the key and the file name).
+      config: JSON-able settings that, with the package files, determine ``fn``.
+      directory: where programs are stored (created).
+    """
+    directory = Path(directory)
+    in_tree = jax.tree.structure(args)
+    path = directory / f"{name}-{program_key(name, config, args)}.jaxexport"
+    stored = _read(path)
+    if stored is not None:
+        return _wrap(stored[0], in_tree, stored[1], loaded=True)
+    shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
+    exported, out_tree = _export(fn, shapes)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        blob = {"module": bytes(exported.serialize()), "out_tree": out_tree}
+        _write_atomic(path, pickle.dumps(blob))
+    except (OSError, ImportError) as err:  # the store only saves time; the program is fine
+        # (serialising needs the ``flatbuffers`` package, a dependency of jaxenvs)
+        warnings.warn(f"could not store program {path}: {err}", stacklevel=2)
+    return _wrap(exported, in_tree, out_tree, loaded=False)

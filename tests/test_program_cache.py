@@ -1,0 +1,116 @@
+"""Stored traced programs: round trip, keys, damaged files, and a warm training run."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxenvs import compile_cache, program_cache
+from jaxenvs.agents import checkpoint, runner
+
+
+class Carry(NamedTuple):
+    key: jax.Array
+    total: jax.Array
+
+
+def _walk(carry: Carry, scale: jax.Array) -> tuple[Carry, dict[str, jax.Array]]:
+    key, sub = jax.random.split(carry.key)
+    step = scale * jax.random.normal(sub, carry.total.shape)
+    return Carry(key, carry.total + step), {"mean": jnp.mean(step)}
+
+
+def _args() -> tuple[Carry, jax.Array]:
+    return Carry(jax.random.key(3), jnp.zeros(4)), jnp.float32(0.5)
+
+
+def _store(tmp_path, config=None, fn=_walk):
+    return program_cache.load_or_export(
+        fn, _args(), name="walk", config=config or {"a": 1}, directory=tmp_path
+    )
+
+
+def _same(a, b) -> None:
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        if jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
+            x, y = jax.random.key_data(x), jax.random.key_data(y)
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def test_stored_program_round_trip(tmp_path):
+    first = _store(tmp_path)
+    second = _store(tmp_path)
+    assert not first.loaded and second.loaded
+    assert len(list(tmp_path.glob("walk-*.jaxexport"))) == 1
+    expected = jax.jit(_walk)(*_args())
+    _same(first.call(*_args()), expected)
+    _same(second.call(*_args()), expected)
+    # custom pytree nodes and PRNG keys come back as they went in
+    out = second.call(*_args())
+    assert isinstance(out[0], Carry) and set(out[1]) == {"mean"}
+    assert jax.tree.structure(second.out_shape) == jax.tree.structure(expected)
+
+
+def test_key_covers_config_shapes_and_source(tmp_path, monkeypatch):
+    _store(tmp_path, {"a": 1})
+    assert _store(tmp_path, {"a": 2}).loaded is False  # another config, another program
+    other = (Carry(jax.random.key(0), jnp.zeros(5)), jnp.float32(0.5))
+    key = program_cache.program_key
+    assert key("walk", {"a": 1}, other) != key("walk", {"a": 1}, _args())
+    before = key("walk", {"a": 1}, _args())
+    monkeypatch.setitem(program_cache._environment(), "source", "edited")
+    assert key("walk", {"a": 1}, _args()) != before
+
+
+def test_damaged_file_is_traced_again(tmp_path):
+    _store(tmp_path)
+    (path,) = tmp_path.glob("walk-*.jaxexport")
+    path.write_bytes(path.read_bytes()[:100])
+    with pytest.warns(UserWarning, match="unreadable stored program"):
+        again = _store(tmp_path)
+    assert not again.loaded
+    _same(again.call(*_args()), jax.jit(_walk)(*_args()))
+    assert _store(tmp_path).loaded  # the file was replaced by a good one
+
+
+def test_arguments_of_another_structure_are_refused(tmp_path):
+    program = _store(tmp_path)
+    with pytest.raises(ValueError, match="do not match"):
+        program.call((jax.random.key(3), jnp.zeros(4)), jnp.float32(0.5))
+
+
+def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch):
+    # the persistent compile cache stays off (process-wide); only the program store is on
+    monkeypatch.setattr(compile_cache, "active", lambda: tmp_path / "cache")
+    loaded: list[bool] = []
+    real = program_cache.load_or_export
+
+    def spy(*args, **kwargs):
+        program = real(*args, **kwargs)
+        loaded.append(program.loaded)
+        return program
+
+    monkeypatch.setattr(program_cache, "load_or_export", spy)
+    agent = dict(num_envs=4, chunk_steps=20, total_steps=4 * 20 * 2, number_splits=3)
+    resolved = runner.resolve_config(
+        "CartPole-v0", "qlearning", None, agent, dict(eval_episodes=2, video=False)
+    )
+    outs = []
+    for name in ("cold", "warm"):
+        runner._programs.cache_clear()
+        outs.append(tmp_path / name)
+        runner.train(resolved, outs[-1], quiet=True)
+    runner._programs.cache_clear()
+    # init, chunk and eval (the eval on a background thread): traced cold, loaded warm
+    assert loaded == [False] * 3 + [True] * 3
+    stored = sorted(p.name.split("-")[-2] for p in (tmp_path / "cache/programs").iterdir())
+    assert stored == ["chunk", "eval", "init"]
+    a, b = (checkpoint.read(o / runner.CHECKPOINT_FILE)[0] for o in outs)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    rows = [runner._read_progress(o / runner.PROGRESS_FILE) for o in outs]
+    assert [r["mean_return"] for r in rows[0]] == [r["mean_return"] for r in rows[1]]
