@@ -14,7 +14,9 @@ versions of jax, jaxlib, mujoco, flax and optax, the backend and device kind, th
 flag, and a digest of every source and model file of the jaxenvs package. Anything else a
 program closes over must be in the caller's config (the runner only uses this for tasks
 defined in the package). A file that cannot be read back is reported, replaced and never
-trusted; writes are atomic.
+trusted; writes are atomic. The file holds the serialised module and a JSON description
+of the output's structure (no pickle): custom pytree nodes in the output are described by
+reference to example structures the caller passes in (``known``).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import hashlib
 import importlib.metadata
 import json
 import os
-import pickle
+import struct
 import tempfile
 import warnings
 from collections.abc import Callable, Mapping
@@ -91,14 +93,71 @@ def program_key(name: str, config: Mapping[str, Any], args: tuple[Any, ...]) -> 
 class Program:
     """A loaded or freshly exported program.
 
-    ``call`` is jitted (``.lower(...).compile()`` works on it) and takes and returns the
-    same pytrees as the original function; ``out_shape`` is its output as
-    ``jax.ShapeDtypeStruct`` leaves; ``loaded`` says whether it came from disk.
+    ``call`` takes and returns the same pytrees as the original function; ``jitted`` is
+    the jitted function behind it (``.lower(...).compile()`` works on it); ``out_shape``
+    is the output as ``jax.ShapeDtypeStruct`` leaves; ``loaded`` says whether it came
+    from disk.
     """
 
-    call: Any  # a jitted function
+    jitted: Any
     out_shape: Any
     loaded: bool
+
+    def call(self, *args: Any) -> Any:
+        """Run the program. Weakly typed inputs (e.g. from Python scalars in another
+        jitted function's output) are made strong first: the module's inputs are, and a
+        weak input would make ``jit`` trace and compile the program a second time."""
+        return self.jitted(*jax.tree.map(_strong, args))
+
+
+def _strong(x: Any) -> Any:
+    if getattr(x, "weak_type", False):
+        return jax.lax.convert_element_type(x, x.dtype)
+    return x
+
+
+class _NotDescribable(Exception):
+    pass
+
+
+def _describe(tree: Any, known: list[Any]) -> Any:
+    """JSON for the treedef ``tree``: builtin containers and leaves spelt out, any subtree
+    equal to one of the ``known`` treedefs referenced by index (custom pytree nodes such as
+    ``mjx.Data`` carry static data that JSON cannot hold, so they must be known)."""
+    for i, k in enumerate(known):
+        if tree == k:
+            return {"known": i}
+    if jax.tree_util.treedef_is_leaf(tree):
+        return "*"
+    node = tree.node_data()
+    kind = None if node is None else node[0]
+    children = [_describe(c, known) for c in tree.children()]
+    if kind is tuple:
+        return {"tuple": children}
+    if kind is list:
+        return {"list": children}
+    if kind is dict and all(isinstance(k, str) for k in node[1]):
+        return {"dict": [list(node[1]), children]}
+    if kind is type(None):
+        return {"none": True}
+    raise _NotDescribable(f"{kind} is neither a builtin container nor a known structure")
+
+
+def _example(desc: Any, known: list[Any]) -> Any:
+    """A pytree (leaves 0) with the structure :func:`_describe` wrote as ``desc``."""
+    if desc == "*":
+        return 0
+    if "known" in desc:
+        tree = known[desc["known"]]
+        return jax.tree.unflatten(tree, [0] * tree.num_leaves)
+    if "tuple" in desc:
+        return tuple(_example(c, known) for c in desc["tuple"])
+    if "list" in desc:
+        return [_example(c, known) for c in desc["list"]]
+    if "dict" in desc:
+        keys, children = desc["dict"]
+        return {k: _example(c, known) for k, c in zip(keys, children, strict=True)}
+    return None
 
 
 def _export(fn: Callable[..., Any], args: tuple[Any, ...]) -> tuple[Any, Any]:
@@ -127,6 +186,10 @@ def _wrap(exported: Any, in_tree: Any, out_tree: Any, loaded: bool) -> Program:
     return Program(call, jax.tree.unflatten(out_tree, shapes), loaded)
 
 
+#: file layout: MAGIC, a little-endian u32 header length, the JSON header, the module
+MAGIC = b"jaxenvs-program-1\n"
+
+
 def _write_atomic(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     try:
@@ -138,14 +201,23 @@ def _write_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-def _read(path: Path) -> tuple[Any, Any] | None:
+def _read(path: Path, known: list[Any]) -> tuple[Any, Any] | None:
     """(exported, out_tree) from ``path``, or ``None`` if it is absent or unreadable."""
     if not path.exists():
         return None
     try:
-        blob = pickle.loads(path.read_bytes())
-        exported = jax.export.deserialize(bytearray(blob["module"]))
-        return exported, blob["out_tree"]
+        blob = path.read_bytes()
+        if not blob.startswith(MAGIC):
+            raise ValueError("not a stored program")
+        start = len(MAGIC) + 4
+        (size,) = struct.unpack("<I", blob[len(MAGIC) : start])
+        header = json.loads(blob[start : start + size])
+        exported = jax.export.deserialize(bytearray(blob[start + size :]))
+        example = _example(header["out"], known)
+        out_tree = jax.tree.structure(example)
+        if len(jax.tree.leaves(example)) != len(exported.out_avals):
+            raise ValueError("output structure does not match the module")
+        return exported, out_tree
     except Exception as err:  # noqa: BLE001 - any damage means: trace again
         warnings.warn(
             f"ignoring unreadable stored program {path} ({type(err).__name__}: {err}); "
@@ -162,6 +234,7 @@ def load_or_export(
     name: str,
     config: Mapping[str, Any],
     directory: str | Path,
+    known: tuple[Any, ...] = (),
 ) -> Program:
     """``fn`` (pure, jittable) as a :class:`Program`, loaded from ``directory`` if stored.
 
@@ -173,20 +246,28 @@ def load_or_export(
       name: what the program is (part of the key and the file name).
       config: JSON-able settings that, with the package files, determine ``fn``.
       directory: where programs are stored (created).
+      known: example pytrees, cheap to build, whose structures the output reuses (e.g.
+        the input state for a step-like function). Every custom pytree node of the
+        output (anything but tuples, lists, string-keyed dicts and None) must sit in a
+        subtree equal to one of them; if not, the program is returned but not stored.
     """
     directory = Path(directory)
     in_tree = jax.tree.structure(args)
-    path = directory / f"{name}-{program_key(name, config, args)}.jaxexport"
-    stored = _read(path)
+    known_trees = [jax.tree.structure(k) for k in known]
+    key = program_key(name, {"config": config, "known": [_aval_text(k) for k in known]}, args)
+    path = directory / f"{name}-{key}.jaxexport"
+    stored = _read(path, known_trees)
     if stored is not None:
         return _wrap(stored[0], in_tree, stored[1], loaded=True)
     shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
     exported, out_tree = _export(fn, shapes)
     try:
+        header = json.dumps({"name": name, "out": _describe(out_tree, known_trees)}).encode()
         directory.mkdir(parents=True, exist_ok=True)
-        blob = {"module": bytes(exported.serialize()), "out_tree": out_tree}
-        _write_atomic(path, pickle.dumps(blob))
-    except (OSError, ImportError) as err:  # the store only saves time; the program is fine
-        # (serialising needs the ``flatbuffers`` package, a dependency of jaxenvs)
+        blob = MAGIC + struct.pack("<I", len(header)) + header + bytes(exported.serialize())
+        _write_atomic(path, blob)
+    except (OSError, ImportError, _NotDescribable) as err:
+        # the store only saves time; the program itself is fine. (Serialising needs the
+        # ``flatbuffers`` package, a dependency of jaxenvs.)
         warnings.warn(f"could not store program {path}: {err}", stacklevel=2)
     return _wrap(exported, in_tree, out_tree, loaded=False)

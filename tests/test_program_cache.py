@@ -28,9 +28,14 @@ def _args() -> tuple[Carry, jax.Array]:
     return Carry(jax.random.key(3), jnp.zeros(4)), jnp.float32(0.5)
 
 
-def _store(tmp_path, config=None, fn=_walk):
+def _store(tmp_path, config=None, fn=_walk, known=None):
     return program_cache.load_or_export(
-        fn, _args(), name="walk", config=config or {"a": 1}, directory=tmp_path
+        fn,
+        _args(),
+        name="walk",
+        config=config or {"a": 1},
+        directory=tmp_path,
+        known=(_args()[0],) if known is None else known,
     )
 
 
@@ -75,6 +80,19 @@ def test_damaged_file_is_traced_again(tmp_path):
     assert not again.loaded
     _same(again.call(*_args()), jax.jit(_walk)(*_args()))
     assert _store(tmp_path).loaded  # the file was replaced by a good one
+
+
+def test_output_of_unknown_structure_is_not_stored(tmp_path):
+    with pytest.warns(UserWarning, match="could not store program"):
+        program = _store(tmp_path, known=())  # Carry is a custom node nobody described
+    assert not list(tmp_path.glob("*.jaxexport"))
+    _same(program.call(*_args()), jax.jit(_walk)(*_args()))
+
+
+def test_file_is_not_pickle_and_names_its_output(tmp_path):
+    _store(tmp_path)
+    (path,) = tmp_path.glob("walk-*.jaxexport")
+    assert path.read_bytes().startswith(program_cache.MAGIC)
 
 
 def test_arguments_of_another_structure_are_refused(tmp_path):

@@ -377,8 +377,9 @@ def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs
     resume or a second run in the same process reuses the compiled programs. Over more
     than one device (``devices``; ``None`` = all), init and chunk split the env batch
     over a mesh of them (:func:`jaxenvs.sharding.shard_trainer_fns`). On one device,
-    with the compile cache on, the three programs are stored traced and loaded on later
-    runs (:func:`_program_store`), so a warm start skips tracing as well as compiling.
+    with the compile cache on, init, chunk and evaluator are stored traced and loaded on
+    later runs (:func:`_program_store`), so a warm start skips most tracing as well as
+    compiling.
     """
     mesh = sharding.make_mesh(devices)
     env, trainer = build(resolved)
@@ -393,16 +394,19 @@ def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs
     key_shape = jax.eval_shape(lambda: eval_key(0))
     store = _program_store(resolved, env, trainer) if mesh.size == 1 else None
     if store is not None:
-        stored_init = store(jax.vmap(trainer.init), (keys,), "init")
-        init_fn = stored_init.call
-        template = stored_init.out_shape
-        chunk_fn = store(jax.vmap(trainer.chunk), (template,), "chunk").call
+        # the training state's structure, which the stored programs' outputs refer to
+        # (~0.5 s of tracing init). init runs through the store too: a state made by a
+        # plain jit would reach the chunk with other input shardings and compile it twice
+        template = jax.eval_shape(jax.vmap(trainer.init), keys)
+        init_fn = store(jax.vmap(trainer.init), (keys,), "init", (template,)).call
+        chunk_fn = store(jax.vmap(trainer.chunk), (template,), "chunk", (template,)).call
         params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), template)
+        env_state = jax.eval_shape(env.reset, jax.random.key(0))  # the trajectory's structure
 
         def compile_evaluate() -> Any:
             evaluate = jax.vmap(evaluator, in_axes=(0, None))
-            program = store(evaluate, (params_shape, key_shape), "eval")
-            return program.call.lower(params_shape, key_shape).compile()
+            program = store(evaluate, (params_shape, key_shape), "eval", (env_state,))
+            return program.jitted.lower(params_shape, key_shape).compile()
 
         return _Programs(env, trainer, init_fn, chunk_fn, _COMPILER.submit(compile_evaluate))
     if mesh.size == 1:
@@ -416,7 +420,7 @@ def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs
 
 def _program_store(
     resolved: ResolvedConfig, env: Env, trainer: Trainer
-) -> Callable[[Callable[..., Any], tuple[Any, ...], str], program_cache.Program] | None:
+) -> Callable[..., program_cache.Program] | None:
     """Loads/stores traced programs next to the compile cache (``None``: not used).
 
     Used only while the compile cache is on and for tasks and trainers defined in this
@@ -430,13 +434,16 @@ def _program_store(
     settings = resolved.to_dict()
     settings["train"] = {k: v for k, v in settings["train"].items() if k != "seed"}
 
-    def store(fn: Callable[..., Any], args: tuple[Any, ...], name: str) -> program_cache.Program:
+    def store(
+        fn: Callable[..., Any], args: tuple[Any, ...], name: str, known: tuple[Any, ...]
+    ) -> program_cache.Program:
         return program_cache.load_or_export(
             fn,
             args,
             name=f"{resolved.algo}-{resolved.env_id}-{name}",
             config=settings,
             directory=cache / program_cache.SUBDIR,
+            known=known,
         )
 
     return store
