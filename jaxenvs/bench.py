@@ -431,7 +431,9 @@ def _mujoco_rollout(task: str, env: Env, num_envs: int, threads: int) -> Runner 
         from mujoco import rollout
     except Exception as err:
         return Skipped("mujoco.rollout", task, "our MJCF", _why(err))
-    model = env.sim.mj_model
+    # the model our MJX step runs (the MJCF without cameras, lights and non-colliding
+    # geoms: jaxenvs.sim.physics_model), so both sides do the same physics work
+    model = getattr(env.sim, "physics_mj_model", env.sim.mj_model)
     substeps = env.sim.substeps
     data = mujoco.MjData(model)
     if model.nkey > 0:

@@ -5,6 +5,12 @@ parity checks, device ``mjx.Model`` for stepping), the physics timestep and the 
 of substeps per control step. Everything it does on device is a pure function of
 ``(model, data, ...)``; randomisable physical quantities enter through
 :meth:`Sim.model_with`, which swaps model fields for values carried in a params pytree.
+
+The device model is the host model without what only a picture needs (:func:`physics_model`):
+cameras, lights and geoms that collide with nothing. MJX computes every such element's
+pose in each physics step; for the small robots that was most of the step's kinematics
+(benchmarks/NOTES.md). Bodies, joints, sites, actuators and colliding geoms keep their ids,
+so ids looked up on the host model index device data too; rendering uses the host model.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import mujoco
+import numpy as np
 from mujoco import mjx
 
 Controller = Callable[[mjx.Data], jax.Array]
@@ -28,7 +35,9 @@ class Sim:
       timestep: physics timestep in seconds (overrides the MJCF's).
       substeps: physics steps per control step.
       edit: optional function applied to the host ``MjModel`` before it is put on
-        device (e.g. to change an actuator's gain for one task).
+        device (e.g. to change an actuator's gain for one task); it is applied to the
+        device model's host copy too, so it must not index geoms, cameras or lights.
+      lean: put :func:`physics_model` on device instead of the full host model.
     """
 
     def __init__(
@@ -37,6 +46,7 @@ class Sim:
         timestep: float,
         substeps: int,
         edit: Callable[[mujoco.MjModel], None] | None = None,
+        lean: bool = True,
     ) -> None:
         if timestep <= 0:
             raise ValueError(f"timestep must be positive, got {timestep}")
@@ -45,9 +55,14 @@ class Sim:
         self.xml = Path(xml)
         self.mj_model = mujoco.MjModel.from_xml_path(str(self.xml))
         self.mj_model.opt.timestep = timestep
+        #: the host model the device model was made from (== ``mj_model`` unless lean)
+        self.physics_mj_model = physics_model(self.xml) if lean else self.mj_model
+        self.physics_mj_model.opt.timestep = timestep
         if edit is not None:
             edit(self.mj_model)
-        self.mx = mjx.put_model(self.mj_model)
+            if lean:
+                edit(self.physics_mj_model)
+        self.mx = mjx.put_model(self.physics_mj_model)
         self.substeps = int(substeps)
         self.timestep = float(timestep)
         self._data0 = mjx.make_data(self.mx)
@@ -100,6 +115,43 @@ class Sim:
 
         data, _ = jax.lax.scan(body, data, None, length=self.substeps)
         return data
+
+
+_INERTIAL = ("body_mass", "body_inertia", "body_ipos", "body_iquat")
+
+
+def physics_model(xml: str | Path) -> mujoco.MjModel:
+    """The MJCF at ``xml`` without cameras, lights and geoms that collide with nothing.
+
+    A geom is dropped when its ``contype`` and ``conaffinity`` are both 0 and no contact
+    ``<pair>`` names it. Every body's inertia is first frozen at the value the full model
+    computes (from its geoms or its ``<inertial>``), so masses, inertias and the dynamics
+    are unchanged; a ValueError says so if they were not. Sites stay (tasks read them).
+    """
+    spec = mujoco.MjSpec.from_file(str(xml))
+    full = spec.compile()
+    bodies = spec.bodies
+    if len(bodies) != full.nbody:
+        raise ValueError(f"{xml}: {len(bodies)} bodies in the spec, {full.nbody} compiled")
+    for i, body in enumerate(bodies[1:], start=1):  # 0 is the world
+        body.explicitinertial = True
+        body.mass = full.body_mass[i]
+        body.ipos = full.body_ipos[i]
+        body.iquat = full.body_iquat[i]
+        body.inertia = full.body_inertia[i]
+    paired = {name for p in spec.pairs for name in (p.geomname1, p.geomname2)}
+    for geom in list(spec.geoms):
+        if geom.contype == 0 and geom.conaffinity == 0 and geom.name not in paired:
+            spec.delete(geom)
+    for element in [*spec.cameras, *spec.lights]:
+        spec.delete(element)
+    lean = spec.compile()
+    for field in _INERTIAL:
+        if lean.nbody != full.nbody or not np.allclose(
+            getattr(lean, field), getattr(full, field), rtol=1e-9, atol=1e-12
+        ):
+            raise ValueError(f"{xml}: dropping visual elements changed {field}")
+    return lean
 
 
 def forward(model: mjx.Model, data: mjx.Data) -> mjx.Data:
