@@ -56,7 +56,6 @@ def run(args: argparse.Namespace) -> int:
     from jaxenvs.agents import runner
     from jaxenvs.cli import UserError
 
-    _enable_compile_cache(args)
     if args.resume:
         given = ("env_id", "algo", "config", "out", *AGENT_FLAGS, *RUN_FLAGS)
         clash = [f for f in given if getattr(args, f) is not None]
@@ -88,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
         resolved = dataclasses.replace(
             resolved, train=dataclasses.replace(resolved.train, video=False)
         )
+    _enable_compile_cache(args)  # only once the command is known to be valid
     summary = runner.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
     line = (
         f"{resolved.algo} on {resolved.env_id}: eval return {summary['eval_mean_return']:.1f} "
