@@ -6,15 +6,19 @@ import os
 import tempfile
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-# a command-line test that switches the compile cache on writes here, not to ~/.cache
+# one persistent compile cache for the whole test session, in a fresh directory (never
+# ~/.cache): modules that build the same programs (an env's step, a trainer's chunk)
+# compile them once per session. Command-line tests that switch the cache on use it too.
 os.environ["JAXENVS_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxenvs-test-cache-")
 
+import jax
 import pytest
 
 import jaxenvs
 from jaxenvs import compile_cache
 from jaxenvs.testing import TaskChecker
 
+_SESSION_CACHE = os.environ["JAXENVS_CACHE_DIR"]
 _CHECKERS: dict[str, TaskChecker] = {}
 
 
@@ -29,10 +33,22 @@ def get_checker():
     return checker_for
 
 
+def _session_compile_cache() -> None:
+    """JAX's persistent cache on, in the session directory, without the program store
+    (:func:`jaxenvs.compile_cache.active` stays ``None``; tests of the store switch it on
+    themselves)."""
+    jax.config.update("jax_compilation_cache_dir", _SESSION_CACHE)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
+_session_compile_cache()
+
+
 @pytest.fixture(autouse=True)
-def _compile_cache_stays_off():
-    """A test that switches the persistent compile cache (and with it the program store)
-    on does not leave it on for the tests after it."""
+def _program_store_stays_off():
+    """A test that switches the command line's cache (and with it the program store) on
+    does not leave the store on for the tests after it."""
     yield
     if compile_cache.active() is not None:
         compile_cache.disable()
+        _session_compile_cache()

@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tabular_fakes import fake_envs
 
 from jaxenvs import compile_cache, program_cache
 from jaxenvs.agents import checkpoint, runner
@@ -102,8 +103,10 @@ def test_arguments_of_another_structure_are_refused(tmp_path):
 
 
 def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch):
-    # the persistent compile cache stays off (process-wide); only the program store is on
+    # the persistent compile cache stays off (process-wide); only the program store is on,
+    # for the physics-free chain task of the test fakes (fast to compile)
     monkeypatch.setattr(compile_cache, "active", lambda: tmp_path / "cache")
+    monkeypatch.setattr(runner, "_STORE_MODULES", ("jaxenvs.", "tabular_fakes"))
     loaded: list[bool] = []
     real = program_cache.load_or_export
 
@@ -113,15 +116,19 @@ def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch)
         return program
 
     monkeypatch.setattr(program_cache, "load_or_export", spy)
-    agent = dict(num_envs=4, chunk_steps=20, total_steps=4 * 20 * 2, number_splits=3)
-    resolved = runner.resolve_config(
-        "CartPole-v0", "qlearning", None, agent, dict(eval_episodes=2, video=False)
-    )
+    agent = dict(
+        alpha=0.5, gamma=0.9, number_splits=7, obs_low=[0.0], obs_high=[7.0],
+        num_envs=2, chunk_steps=30, total_steps=2 * 30 * 3,
+    )  # fmt: skip
     outs = []
-    for name in ("cold", "warm"):
-        runner._programs.cache_clear()
-        outs.append(tmp_path / name)
-        runner.train(resolved, outs[-1], quiet=True)
+    with fake_envs():
+        resolved = runner.resolve_config(
+            "Test-Chain-v0", "qlearning", None, agent, dict(eval_episodes=3, video=False)
+        )
+        for name in ("cold", "warm"):
+            runner._programs.cache_clear()
+            outs.append(tmp_path / name)
+            runner.train(resolved, outs[-1], quiet=True)
     runner._programs.cache_clear()
     # init, chunk and eval (the eval on a background thread): traced cold, loaded warm
     assert loaded == [False] * 3 + [True] * 3
@@ -132,3 +139,15 @@ def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch)
         np.testing.assert_array_equal(x, y)
     rows = [runner._read_progress(o / runner.PROGRESS_FILE) for o in outs]
     assert [r["mean_return"] for r in rows[0]] == [r["mean_return"] for r in rows[1]]
+
+
+def test_user_tasks_are_not_stored(tmp_path, monkeypatch):
+    """A task defined outside the package is not covered by the key: nothing is stored."""
+    monkeypatch.setattr(compile_cache, "active", lambda: tmp_path / "cache")
+    with fake_envs():
+        resolved = runner.resolve_config(
+            "Test-Chain-v0", "qlearning", None, {"number_splits": 7, "obs_low": [0.0],
+            "obs_high": [7.0]}, {}
+        )  # fmt: skip
+        env, trainer = runner.build(resolved)
+        assert runner._program_store(resolved, env, trainer) is None

@@ -418,6 +418,11 @@ def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs
     return _Programs(env, trainer, init_fn, chunk_fn, future)
 
 
+#: modules whose tasks and trainers may have their programs stored: the key covers the
+#: package's own files only (see :mod:`jaxenvs.program_cache`).
+_STORE_MODULES: tuple[str, ...] = ("jaxenvs.",)
+
+
 def _program_store(
     resolved: ResolvedConfig, env: Env, trainer: Trainer
 ) -> Callable[..., program_cache.Program] | None:
@@ -429,7 +434,7 @@ def _program_store(
     cache = compile_cache.active()
     factory = registry.spec(resolved.env_id).factory
     owners = (type(env).__module__, type(trainer).__module__, getattr(factory, "__module__", ""))
-    if cache is None or not all(str(m).startswith("jaxenvs.") for m in owners):
+    if cache is None or not all(str(m).startswith(_STORE_MODULES) for m in owners):
         return None
     settings = resolved.to_dict()
     settings["train"] = {k: v for k, v in settings["train"].items() if k != "seed"}
