@@ -49,7 +49,11 @@ def test_any_float_action_lands_in_the_box(envs, sanitize, x):
     assert cont.action_space.contains(action)
     assert int(bad) == int(not np.isfinite(x))
     expected = 0.0 if not np.isfinite(x) else float(np.clip(np.float32(x), -1, 1))
-    assert action[0] == np.float32(expected)
+    if abs(np.float32(expected)) < np.finfo(np.float32).tiny:
+        # XLA on CPU flushes float32 subnormals (|x| < 1.2e-38) to zero
+        assert action[0] in (np.float32(expected), np.float32(0.0))
+    else:
+        assert action[0] == np.float32(expected)
 
 
 @JITTED
