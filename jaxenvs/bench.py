@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxenvs
+from jaxenvs import files
 from jaxenvs.core import BatchedEnv, Env, State
 from jaxenvs.testing import random_actions
 
@@ -571,5 +572,6 @@ def plot(results: Sequence[dict[str, Any]], path: str) -> None:
         ax.set_title(task)
         ax.legend(fontsize=6)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with files.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120)
     plt.close(fig)

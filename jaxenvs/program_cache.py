@@ -26,15 +26,15 @@ import functools
 import hashlib
 import importlib.metadata
 import json
-import os
 import struct
-import tempfile
 import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import jax
+
+from jaxenvs import files
 
 #: subdirectory of the compile-cache directory that holds exported programs.
 SUBDIR = "programs"
@@ -190,17 +190,6 @@ def _wrap(exported: Any, in_tree: Any, out_tree: Any, loaded: bool) -> Program:
 MAGIC = b"jaxenvs-program-1\n"
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _read(path: Path, known: list[Any]) -> tuple[Any, Any] | None:
     """(exported, out_tree) from ``path``, or ``None`` if it is absent or unreadable."""
     if not path.exists():
@@ -265,7 +254,7 @@ def load_or_export(
         header = json.dumps({"name": name, "out": _describe(out_tree, known_trees)}).encode()
         directory.mkdir(parents=True, exist_ok=True)
         blob = MAGIC + struct.pack("<I", len(header)) + header + bytes(exported.serialize())
-        _write_atomic(path, blob)
+        files.write_bytes(path, blob)
     except (OSError, ImportError, _NotDescribable) as err:
         # the store only saves time; the program itself is fine. (Serialising needs the
         # ``flatbuffers`` package, a dependency of jaxenvs.)

@@ -23,7 +23,6 @@ import importlib
 import os
 import subprocess
 import sys
-import tempfile
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,6 +30,8 @@ from typing import Any
 
 import mujoco
 import numpy as np
+
+from jaxenvs import files
 
 #: headless backends tried in order when ``MUJOCO_GL`` is not set.
 HEADLESS_BACKENDS = ("egl", "osmesa")
@@ -322,18 +323,10 @@ def write_video(frames: Any, path: str | os.PathLike[str], fps: float = 30.0) ->
         raise ValueError(f"expected uint8 frames, got {frames.dtype}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
-    try:
-        os.chmod(tmp, 0o644)  # mkstemp's 0600 would make the video private
-        with warnings.catch_warnings():
-            # JAX's notice about fork(); imageio-ffmpeg forks only to exec ffmpeg.
-            warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
-            _mimwrite(imageio, tmp, frames, path.suffix.lower(), fps)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with files.atomic_path(path) as tmp, warnings.catch_warnings():
+        # JAX's notice about fork(); imageio-ffmpeg forks only to exec ffmpeg.
+        warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+        _mimwrite(imageio, str(tmp), frames, path.suffix.lower(), fps)
     return path
 
 

@@ -20,14 +20,14 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any
 
 import jax
 import numpy as np
+
+from jaxenvs import files
 
 FORMAT = "jaxenvs-checkpoint"
 FORMAT_VERSION = 1
@@ -77,19 +77,9 @@ def save(path: str | Path, state: Any, metadata: dict[str, Any] | None = None) -
     }
     arrays[META_KEY] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            buf = io.BytesIO()
-            np.savez(buf, **arrays)  # type: ignore[arg-type]
-            f.write(buf.getvalue())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)  # type: ignore[arg-type]
+    files.write_bytes(path, buf.getvalue(), fsync=True)
 
 
 def read(path: str | Path) -> tuple[list[np.ndarray], dict[str, Any]]:

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
-from jaxenvs import compile_cache, program_cache, registry, sharding
+from jaxenvs import compile_cache, files, program_cache, registry, sharding
 from jaxenvs.agents import checkpoint
 from jaxenvs.agents.base import CHUNK_METRICS, Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
@@ -301,12 +301,10 @@ def _read_progress(path: Path) -> list[dict[str, str]]:
 
 
 def _write_progress(path: Path, columns: list[str], rows: list[dict[str, Any]]) -> None:
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
+    with files.atomic_path(path) as tmp, tmp.open("w", newline="") as f:
         writer = csv.DictWriter(f, columns, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
-    tmp.replace(path)
 
 
 def _fmt(x: Any) -> str:
@@ -317,9 +315,7 @@ def _fmt(x: Any) -> str:
 
 
 def _write_json(path: Path, data: Mapping[str, Any]) -> None:
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n")
-    tmp.replace(path)
+    files.write_text(path, json.dumps(data, indent=2, allow_nan=True) + "\n")
 
 
 # ------------------------------------------------------------------------ the runner
@@ -512,7 +508,7 @@ def train(
         finished = bool(meta.get("finished", False))
         say(f"resuming {out} at chunk {start}/{trainer.num_chunks}")
     else:
-        (out / CONFIG_FILE).write_text(yaml.safe_dump(resolved.to_dict(), sort_keys=False))
+        files.write_text(out / CONFIG_FILE, yaml.safe_dump(resolved.to_dict(), sort_keys=False))
         state = init_fn(keys)
         start, wall_before, cpu_before, rows, finished = 0, 0.0, 0.0, [], False
         top = np.full((run.num_seeds, 0), -1.0, np.float32)
@@ -799,7 +795,8 @@ def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None 
     ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     out = Path(out)
-    fig.savefig(out, dpi=100)
+    with files.atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
     return out
 

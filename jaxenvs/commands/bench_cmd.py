@@ -15,6 +15,8 @@ import json
 import sys
 from typing import Any
 
+from jaxenvs import files
+
 HELP = "measure env steps/s over a batch sweep, optionally beside Gymnasium/EnvPool/MuJoCo"
 
 
@@ -148,8 +150,7 @@ def run(args: argparse.Namespace) -> int:
         "ratios": ratio_rows,
     }
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=2)
+        files.write_text(args.json, json.dumps(out, indent=2) + "\n")
     if args.plot:
         bench.plot(results, args.plot)
     return 0
