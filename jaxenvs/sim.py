@@ -53,10 +53,13 @@ class Sim:
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
         self.xml = Path(xml)
-        self.mj_model = mujoco.MjModel.from_xml_path(str(self.xml))
+        if lean:
+            self.mj_model, lean_model = _full_and_lean(self.xml)
+        else:
+            self.mj_model = lean_model = mujoco.MjModel.from_xml_path(str(self.xml))
         self.mj_model.opt.timestep = timestep
         #: the host model the device model was made from (== ``mj_model`` unless lean)
-        self.physics_mj_model = physics_model(self.xml) if lean else self.mj_model
+        self.physics_mj_model = lean_model
         self.physics_mj_model.opt.timestep = timestep
         if edit is not None:
             edit(self.mj_model)
@@ -128,6 +131,11 @@ def physics_model(xml: str | Path) -> mujoco.MjModel:
     computes (from its geoms or its ``<inertial>``), so masses, inertias and the dynamics
     are unchanged; a ValueError says so if they were not. Sites stay (tasks read them).
     """
+    return _full_and_lean(xml)[1]
+
+
+def _full_and_lean(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjModel]:
+    """The full model at ``xml`` and :func:`physics_model`'s lean copy, each compiled once."""
     spec = mujoco.MjSpec.from_file(str(xml))
     full = spec.compile()
     bodies = spec.bodies
@@ -151,7 +159,7 @@ def physics_model(xml: str | Path) -> mujoco.MjModel:
             getattr(lean, field), getattr(full, field), rtol=1e-9, atol=1e-12
         ):
             raise ValueError(f"{xml}: dropping visual elements changed {field}")
-    return lean
+    return full, lean
 
 
 def forward(model: mjx.Model, data: mjx.Data) -> mjx.Data:
