@@ -12,7 +12,7 @@ This guards what no reward curve reveals: a wrong integrator, timestep, substep 
 actuator mapping or a stage skipped in a hand-ordered MJX step.
 
 Adding a robot is one ``ParityCase`` in ``CASES``. The harness assumes the task holds
-``ctrl`` constant over a control step (``Sim.step``, or ``physics_step`` substeps) and
+``ctrl`` constant over a control step (``Sim.step``) and
 keeps randomisable model fields in ``params.model``; a task whose controller runs at the
 physics rate (``Sim.step_controlled``, e.g. ``CartpoleStayUp-v0``) needs a host mirror
 of that controller and is not covered here.

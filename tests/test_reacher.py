@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import copy
+
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
 import jaxenvs
 from jaxenvs.config import ConfigError
-from jaxenvs.tasks.reacher import LINK_LENGTH, REACH
+from jaxenvs.tasks.reacher import LINK_LENGTH, REACH, planar_arm
 
 N = 64
 
@@ -64,6 +67,28 @@ def test_fingertip_matches_forward_kinematics(traj):
     np.testing.assert_allclose(tip, forward_kinematics(qpos), atol=2e-6)
 
 
+def test_fingertip_is_mujocos_site_position(env):
+    """The task's planar kinematics (no MJX kinematics pass needed) agree with MuJoCo C's
+    fingertip site at any angles, wrapped ones included."""
+    model = env.sim.mj_model
+    host = mujoco.MjData(model)
+    qpos = np.random.default_rng(0).uniform(-12.0, 12.0, (200, 2))
+    tips = jax.jit(jax.vmap(lambda q: env.fingertip(env.sim._data0.replace(qpos=q))))
+    ours = np.asarray(tips(jnp.asarray(qpos, jnp.float32)))
+    for q, tip in zip(qpos, ours, strict=True):
+        host.qpos[:] = np.float32(q)
+        mujoco.mj_kinematics(model, host)
+        np.testing.assert_allclose(tip, host.site_xpos[env._tip, :2], atol=2e-6)
+
+
+def test_planar_arm_refuses_another_robot(env):
+    model = copy.deepcopy(env.sim.mj_model)
+    planar_arm(model, env._tip)  # the shipped arm is accepted
+    model.jnt_axis[1] = [0, 1, 0]
+    with pytest.raises(ValueError, match="hinges about z"):
+        planar_arm(model, env._tip)
+
+
 def test_observation_layout(traj):
     s = jax.tree.map(lambda x: x[-1], traj[1])
     obs, q, qd = np.asarray(s.obs), np.asarray(s.data.qpos), np.asarray(s.data.qvel)
@@ -99,9 +124,10 @@ def test_targets_uniform_in_reach_disk(env, vreset):
     assert abs(np.mean(r**2) / (REACH**2 / 2) - 1) < 0.05
     quadrant = (target[:, 0] > 0) * 2 + (target[:, 1] > 0)
     assert np.all(np.abs(np.bincount(quadrant, minlength=4) / len(r) - 0.25) < 0.03)
-    # at the arm's height, where the fingertip is
-    tip_z = np.asarray(s.data.site_xpos)[:, 0, 2]
-    np.testing.assert_allclose(target[:, 2], tip_z, atol=1e-6)
+    # at the arm's height, where the fingertip is (MuJoCo C's kinematics on the host model)
+    host = mujoco.MjData(env.sim.mj_model)
+    mujoco.mj_forward(env.sim.mj_model, host)
+    np.testing.assert_allclose(target[:, 2], host.site_xpos[env._tip, 2], atol=1e-6)
 
 
 def test_target_radius_param_bounds_targets(env, vreset):

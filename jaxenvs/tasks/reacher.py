@@ -37,12 +37,13 @@
   Euler with damping integrated implicitly, sparse mass matrix (``jacobian="sparse"``:
   MJX factorises M with plain JAX ops; the dense path calls LAPACK's Cholesky per step,
   and the batched env ran 1.2x faster sparse at 4096 envs and 1.35x at 16384 on the
-  2-core CPU, benchmarks/NOTES.md). Each physics step runs MJX's stages in the order
-  actuation -> acceleration -> Euler -> position -> velocity, which is ``mjx.step``'s
-  work rotated by two stages: the same arithmetic (checked against ``mujoco.mj_step`` in
-  ``tests/test_parity.py``), but the data ends with the kinematics of the NEW state, so
-  the fingertip is read from the ``fingertip`` site in ``data.site_xpos`` without a
-  second kinematics pass (``mjx.step`` leaves positions one substep behind ``qpos``).
+  2-core CPU, benchmarks/NOTES.md). Each physics step is ``mjx.step`` (checked against
+  ``mujoco.mj_step`` in ``tests/test_parity.py``). ``mjx.step`` leaves positions one
+  substep behind ``qpos``, so the fingertip is computed from ``qpos`` by the arm's planar
+  kinematics (:func:`planar_arm` reads the link offsets from the MJCF and refuses any
+  other robot; ``tests/test_reacher.py`` checks it against MuJoCo's site position). A reset
+  therefore needs no kinematics pass: its compile is 1.5-3 s instead of 6-8 s, and the
+  batched step's first call 4-5 s shorter.
 
 Params (``ReacherParams``): ``model`` holds the MJX model fields ``body_mass``,
 ``body_inertia``, ``dof_armature``, ``dof_damping`` and ``actuator_gear``;
@@ -139,16 +140,36 @@ class ReacherConfig(TaskConfig):
         )
 
 
-def physics_step(model: mjx.Model, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
-    """One Euler step of a constraint-free model, ending with the new state's kinematics.
+def planar_arm(model: mujoco.MjModel, site: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(base, link, tip) offsets in the plane of a 2-hinge arm whose joints turn about z.
 
-    ``data`` must hold the position and velocity stages of its own ``qpos``/``qvel`` (as
-    after ``mjx.forward`` or a previous call). The result equals ``mjx.step`` followed by
-    ``mjx.fwd_position`` and ``mjx.fwd_velocity``, at the cost of ``mjx.step`` alone.
+    The fingertip of such an arm at angles ``q`` is ``base + R(q0) link + R(q0 + q1) tip``
+    (``R`` a planar rotation): ``base`` is the first body's position, ``link`` the second
+    body's offset in the first, ``tip`` the site's offset in the second. Raises ValueError
+    if the model is not that arm (another joint type or axis, rotated bodies, a joint away
+    from its body's origin, or the site on another body).
     """
-    data = mjx.fwd_acceleration(model, mjx.fwd_actuation(model, data.replace(ctrl=ctrl)))
-    data = mjx.euler(model, data.replace(qacc=data.qacc_smooth))
-    return mjx.fwd_velocity(model, mjx.fwd_position(model, data))
+    if model.njnt != 2 or model.nq != 2:
+        raise ValueError(f"expected a 2-joint arm, got {model.njnt} joints")
+    bodies = [int(b) for b in model.jnt_bodyid]
+    chained = int(model.body_parentid[bodies[1]]) == bodies[0]
+    if not chained or int(model.site_bodyid[site]) != bodies[1]:
+        raise ValueError("expected a chain: joint 0's body, joint 1's body, then the site")
+    hinge = mujoco.mjtJoint.mjJNT_HINGE
+    if any(int(t) != hinge for t in model.jnt_type) or not np.allclose(model.jnt_axis, [0, 0, 1]):
+        raise ValueError("expected two hinges about z")
+    if not np.allclose(model.jnt_pos, 0) or not np.allclose(model.body_quat[bodies], [1, 0, 0, 0]):
+        raise ValueError("expected unrotated bodies with joints at their origins")
+    return (
+        np.asarray(model.body_pos[bodies[0], :2]),
+        np.asarray(model.body_pos[bodies[1], :2]),
+        np.asarray(model.site_pos[site, :2]),
+    )
+
+
+def _rotate(angle: jax.Array, v: jax.Array) -> jax.Array:
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    return jnp.stack([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
 class Reacher(Env[ReacherConfig]):
@@ -159,6 +180,9 @@ class Reacher(Env[ReacherConfig]):
     """
 
     metric_keys = ("distance", "ctrl_cost")
+    #: 2: 1.05x the env steps/s of 1 at 16,384 envs on the 2-core CPU for 3.5 s more
+    #: compile; 3 was 1.18x but its first call came within a second or two of 20 s.
+    scan_unroll = 2
 
     def __init__(self, config: ReacherConfig | None = None) -> None:
         config = config or ReacherConfig()
@@ -171,6 +195,9 @@ class Reacher(Env[ReacherConfig]):
         ):
             raise ValueError("reacher.xml must use Euler with constraints and contacts disabled")
         self._tip = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "fingertip")
+        self._base, self._link, self._tip_offset = (
+            jnp.asarray(v, jnp.float32) for v in planar_arm(m, self._tip)
+        )
         arm = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, b) for b in ARM_BODIES]
         self._arm_mask = jnp.asarray(np.isin(np.arange(m.nbody), arm))
         self._params = ReacherParams(
@@ -224,26 +251,17 @@ class Reacher(Env[ReacherConfig]):
         )
         target = self.sample_target(target_key, params.target_radius)
         mocap = jnp.concatenate([target, jnp.full((1,), self._target_z)])[None]
-        data = self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap)
-        model = self.sim.model_with(params.model)
-        return mjx.fwd_velocity(model, mjx.fwd_position(model, data)), None
+        return self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap), None
 
     def _act(
         self, data: mjx.Data, extras: None, action: jax.Array, params: ReacherParams
     ) -> tuple[mjx.Data, None]:
-        model = self.sim.model_with(params.model)
-        if self.sim.substeps == 1:
-            return physics_step(model, data, action), extras
-
-        def body(d: mjx.Data, _: None) -> tuple[mjx.Data, None]:
-            return physics_step(model, d, action), None
-
-        data, _ = jax.lax.scan(body, data, None, length=self.sim.substeps)
-        return data, extras
+        return self.sim.step(self.sim.model_with(params.model), data, action), extras
 
     def fingertip(self, data: mjx.Data) -> jax.Array:
-        """The fingertip's (x, y), read from the ``fingertip`` site."""
-        return data.site_xpos[self._tip, :2]
+        """The fingertip's (x, y) at ``data.qpos``: the arm's planar forward kinematics."""
+        q0, q1 = data.qpos[0], data.qpos[1]
+        return self._base + _rotate(q0, self._link) + _rotate(q0 + q1, self._tip_offset)
 
     def _observe(self, data: mjx.Data, extras: None, params: ReacherParams) -> jax.Array:
         target = data.mocap_pos[0, :2]
