@@ -23,7 +23,7 @@ import yaml
 from tabular_fakes import fake_envs
 
 import jaxenvs
-from jaxenvs import cli
+from jaxenvs import cli, files
 from jaxenvs.agents import checkpoint, runner
 from jaxenvs.agents.checkpoint import CheckpointError
 from jaxenvs.config import ConfigError, load_yaml
@@ -267,7 +267,7 @@ def test_checkpoint_write_is_atomic(saved, monkeypatch):
     def crash(src, dst):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(checkpoint.os, "replace", crash)
+    monkeypatch.setattr(files.os, "replace", crash)  # the rename every atomic write ends with
     newer = {**state, "w": state["w"] + 100.0}
     with pytest.raises(KeyboardInterrupt):
         checkpoint.save(path, newer, {"chunk": 2})

@@ -182,7 +182,7 @@ def test_checkpoint_round_trip_keeps_prng_keys(tmp_path):
     )
     np.testing.assert_array_equal(restored["raw"], state["raw"])
     np.testing.assert_array_equal(restored["x"], state["x"])
-    assert not list(tmp_path.glob("*.tmp"))  # the temporary file was renamed away
+    assert [p.name for p in tmp_path.iterdir()] == ["ck.npz"]  # the temp file was renamed away
 
 
 def test_load_policy_acts_greedily(full_run):

@@ -147,14 +147,14 @@ def planar_arm(model: mujoco.MjModel, site: int) -> tuple[np.ndarray, np.ndarray
     (``R`` a planar rotation): ``base`` is the first body's position, ``link`` the second
     body's offset in the first, ``tip`` the site's offset in the second. Raises ValueError
     if the model is not that arm (another joint type or axis, rotated bodies, a joint away
-    from its body's origin, or the site on another body).
+    from its body's origin, the first body not on the world, or the site on another body).
     """
     if model.njnt != 2 or model.nq != 2:
         raise ValueError(f"expected a 2-joint arm, got {model.njnt} joints")
     bodies = [int(b) for b in model.jnt_bodyid]
-    chained = int(model.body_parentid[bodies[1]]) == bodies[0]
-    if not chained or int(model.site_bodyid[site]) != bodies[1]:
-        raise ValueError("expected a chain: joint 0's body, joint 1's body, then the site")
+    parents = [int(model.body_parentid[b]) for b in bodies]
+    if parents != [0, bodies[0]] or int(model.site_bodyid[site]) != bodies[1]:
+        raise ValueError("expected a chain: the world, joint 0's body, joint 1's body, the site")
     hinge = mujoco.mjtJoint.mjJNT_HINGE
     if any(int(t) != hinge for t in model.jnt_type) or not np.allclose(model.jnt_axis, [0, 0, 1]):
         raise ValueError("expected two hinges about z")
