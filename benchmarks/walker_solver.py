@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import time
 from typing import Any
 
 import jax
@@ -87,24 +86,6 @@ def make_env(v: Variant, num_envs: int | None) -> Any:
         hexapod._solver_edit = original  # type: ignore[assignment]
 
 
-def prepare(name: str, v: Variant, num_envs: int, steps: int) -> bench.Runner:
-    """bench.prepare_ours for a variant: compile, warm up, return a timed runner."""
-    benv = make_env(v, num_envs)
-    run = jax.jit(bench._scan_fn(benv, "full", steps), donate_argnums=0)
-    keys = iter(jax.random.split(jax.random.key(0), 100_000))
-    state = jax.block_until_ready(jax.jit(benv.reset)(next(keys)))
-    t0 = time.perf_counter()
-    state = jax.block_until_ready(run(state, next(keys)))
-    info = {"first_call_s": time.perf_counter() - t0, "substeps": v.substeps, "variant_name": name}
-    holder = [state]
-
-    def unit() -> int:
-        holder[0] = jax.block_until_ready(run(holder[0], next(keys)))
-        return num_envs * steps
-
-    return bench.Runner("jaxenvs", "HexapodWalk-v0", name, num_envs, unit, info)
-
-
 def stability(v: Variant, num_envs: int = 64, seconds: float = 2.0) -> dict[str, float]:
     """Stance under zero action (height, joint speed) and divergence under random actions."""
     benv = make_env(v, num_envs)
@@ -165,7 +146,8 @@ def main(argv: list[str] | None = None) -> None:
     for b in args.batches:
         runners = []
         for n in names:
-            runners.append(prepare(n, VARIANTS[n], b, args.steps))
+            benv = make_env(VARIANTS[n], b)
+            runners.append(bench.prepare_batched(benv, "HexapodWalk-v0", "full", args.steps, n))
             print(f"# compiled {n} x{b}: {runners[-1].info['first_call_s']:.1f} s", flush=True)
         results += bench.time_runners(runners, args.repeats)
     rows: list[list[Any]] = [["variant", "envs", "env steps/s", "first call s", "vs base"]]

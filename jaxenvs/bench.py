@@ -184,6 +184,15 @@ def prepare_ours(
     assert isinstance(benv, BatchedEnv)
     if devices is not None and devices > 1:
         return _prepare_sharded(env_id, benv, mode, steps, devices)
+    return prepare_batched(benv, env_id, mode, steps)
+
+
+def prepare_batched(
+    benv: BatchedEnv, task: str, mode: str = "full", steps: int = 100, variant: str | None = None
+) -> Runner:
+    """:func:`prepare_ours` for an env already built (e.g. with config overrides), on one
+    device; the runner is filed under ``task`` with ``variant`` (default: ``mode``)."""
+    num_envs = benv.num_envs
     run = jax.jit(_scan_fn(benv, mode, steps), donate_argnums=0)
     keys = iter(jax.random.split(jax.random.key(0), 1_000_000))
 
@@ -220,7 +229,7 @@ def prepare_ours(
         holder[0] = jax.block_until_ready(compiled(holder[0], next(keys)))
         return num_envs * steps
 
-    return Runner("jaxenvs", env_id, mode, num_envs, unit, info)
+    return Runner("jaxenvs", task, variant or mode, num_envs, unit, info)
 
 
 def _prepare_sharded(env_id: str, benv: BatchedEnv, mode: str, steps: int, devices: int) -> Runner:
