@@ -124,11 +124,12 @@ def _physics_step(env: Env) -> Callable[[State, jax.Array], State]:
     lo = jnp.asarray(sim.mj_model.actuator_ctrlrange[:, 0], jnp.float32)
     hi = jnp.asarray(sim.mj_model.actuator_ctrlrange[:, 1], jnp.float32)
     vstep = jax.vmap(sim.step, in_axes=(None, 0, 0))
+    model = sim.model_with({})
 
     def step(state: State, key: jax.Array) -> State:
         n = state.time.shape[0]
         ctrl = jax.random.uniform(key, (n, *lo.shape), minval=lo, maxval=hi)
-        return state.replace(data=vstep(sim.mx, state.data, ctrl))
+        return state.replace(data=vstep(model, state.data, ctrl))
 
     return step
 

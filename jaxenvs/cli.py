@@ -50,6 +50,14 @@ def _unavailable(name: str):  # type: ignore[no-untyped-def]
     return run
 
 
+def _use_cores(args: argparse.Namespace) -> None:
+    """Every command uses all usable cores unless ``--threads`` says otherwise; this runs
+    before the command's first JAX operation (it fixes the CPU's XLA device count)."""
+    from jaxenvs import machine
+
+    machine.use_cores(getattr(args, "threads", None), strict=False)
+
+
 class UserError(Exception):
     """An error the user can fix; printed as one line."""
 
@@ -58,6 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        _use_cores(args)
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -49,6 +49,29 @@ from jaxenvs.sim import Sim
 PyTree = Any
 Params = Any
 
+#: values of ``TaskConfig.physics``
+PHYSICS_CHOICES = ("auto", "mjx", "c")
+
+
+def resolve_physics(requested: str, cpu_default: str, backend: str | None = None) -> str:
+    """The engine ``requested`` means on ``backend`` (default: JAX's default backend).
+
+    ``"auto"`` is MJX on an accelerator and ``cpu_default`` on a CPU; ``"c"`` on an
+    accelerator raises ``ValueError`` (MuJoCo's C engine runs on the CPU only).
+    """
+    if requested not in PHYSICS_CHOICES:
+        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {requested!r}")
+    backend = backend or jax.default_backend()
+    if requested == "auto":
+        return cpu_default if backend == "cpu" else "mjx"
+    if requested == "c" and backend != "cpu":
+        raise ValueError(
+            f"physics='c' steps MuJoCo's C engine on the CPU, but JAX's default backend is "
+            f"{backend!r}: use physics='mjx' or 'auto' there, or run with JAX_PLATFORMS=cpu"
+        )
+    return requested
+
+
 STANDARD_INFO_KEYS = (
     "episode_return",
     "episode_length",
@@ -101,13 +124,23 @@ class TaskConfig:
       episode_length: steps before truncation.
       divergence_bound: an env whose |qpos| or |qvel| exceeds this (or is non-finite) is
         terminated with ``info["diverged"]``.
+      physics: the engine that steps the physics: ``"mjx"`` (MJX, any JAX backend),
+        ``"c"`` (MuJoCo's C engine, CPU only, :mod:`jaxenvs.cengine`) or ``"auto"`` (MJX on
+        an accelerator; on a CPU the task's measured faster engine, ``Env.cpu_physics``).
+        A built env's config holds the resolved engine.
     """
 
     episode_length: int = 1000
     divergence_bound: float = 1e4
+    physics: str = "auto"
 
     def validate(self) -> None:
         require(self.episode_length > 0, "episode_length", "must be positive")
+        require(
+            self.physics in PHYSICS_CHOICES,
+            "physics",
+            f"must be one of {', '.join(PHYSICS_CHOICES)}",
+        )
         for name in ("timestep", "substeps"):
             if hasattr(self, name):
                 require(getattr(self, name) > 0, name, "must be positive")
@@ -131,9 +164,21 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: use it; pass it to your own scans the same way.
     scan_unroll: int = 1
 
+    #: the engine ``physics="auto"`` picks on a CPU. ``"mjx"`` unless a task's engine
+    #: parity and speed were measured (our tasks: ``tests/test_cengine.py``,
+    #: benchmarks/RESULTS.md); the C engine fills only some ``mjx.Data`` fields
+    #: (:data:`jaxenvs.cengine.WRITTEN`).
+    cpu_physics: str = "mjx"
+
     def __init__(self, config: ConfigT, sim: Sim) -> None:
+        requested = getattr(config, "physics", "auto")
+        physics = resolve_physics(requested, self.cpu_physics)
+        if requested != physics:
+            config = dataclasses.replace(config, physics=physics)
         self.config = config
-        self.sim = sim
+        #: the engine stepping this env: ``"mjx"`` or ``"c"``
+        self.physics = physics
+        self.sim = sim.with_physics(physics)
 
     # ----------------------------------------------------------------- description
     @property

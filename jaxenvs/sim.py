@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -53,6 +54,8 @@ class Sim:
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
         self.xml = Path(xml)
+        self.edit = edit
+        self.lean = lean
         if lean:
             self.mj_model, lean_model = _full_and_lean(self.xml)
         else:
@@ -75,7 +78,18 @@ class Sim:
         """Seconds of simulated time per control step."""
         return self.timestep * self.substeps
 
-    def model_with(self, fields: Mapping[str, jax.Array]) -> mjx.Model:
+    #: the physics engine that steps this world (``"mjx"``; :class:`CSim` is ``"c"``)
+    physics = "mjx"
+
+    def with_physics(self, physics: str, threads: int | None = None) -> Sim:
+        """This world stepped by ``physics``: ``"mjx"`` (itself) or ``"c"`` (:class:`CSim`)."""
+        if physics == "mjx":
+            return self
+        if physics == "c":
+            return CSim(self, threads)
+        raise ValueError(f"physics must be 'mjx' or 'c', got {physics!r}")
+
+    def model_with(self, fields: Mapping[str, jax.Array]) -> Any:
         """The device model with top-level fields replaced (e.g. ``body_mass``)."""
         if not fields:
             return self.mx
@@ -93,7 +107,7 @@ class Sim:
         """
         return self._data0.replace(qpos=qpos, qvel=qvel, **fields)
 
-    def step(self, model: mjx.Model, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
+    def step(self, model: Any, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
         """Hold ``ctrl`` for one control step (``substeps`` MJX physics steps)."""
         data = data.replace(ctrl=jnp.asarray(ctrl, data.ctrl.dtype))
         if self.substeps == 1:
@@ -105,7 +119,7 @@ class Sim:
         data, _ = jax.lax.scan(body, data, None, length=self.substeps)
         return data
 
-    def step_controlled(self, model: mjx.Model, data: mjx.Data, controller: Controller) -> mjx.Data:
+    def step_controlled(self, model: Any, data: mjx.Data, controller: Controller) -> mjx.Data:
         """One control step where ``controller(data) -> ctrl`` runs before every substep.
 
         This is how a robot-level low-level controller (e.g. a velocity servo that
@@ -118,6 +132,68 @@ class Sim:
 
         data, _ = jax.lax.scan(body, data, None, length=self.substeps)
         return data
+
+
+class CSim(Sim):
+    """The same world stepped by MuJoCo's C engine on the CPU (:mod:`jaxenvs.cengine`).
+
+    Built from a :class:`Sim`: the same host model, timestep, substeps and edits, so ids,
+    default params and rendering are unchanged. :meth:`model_with` returns the fields
+    themselves (the C engine writes them into its host model), :meth:`step` and
+    :meth:`step_controlled` call the C engine, and :meth:`init_data` starts from a state
+    whose fields the C engine does not compute are NaN (:func:`jaxenvs.cengine.nan_data`).
+    """
+
+    physics = "c"
+
+    def __init__(self, base: Sim, threads: int | None = None) -> None:  # noqa: D107
+        from jaxenvs import cengine, machine
+
+        if jax.default_backend() != "cpu":
+            raise ValueError(
+                f"physics='c' steps MuJoCo's C engine on the CPU, but JAX's default backend "
+                f"is {jax.default_backend()!r}: use physics='mjx' (or 'auto') there, or run "
+                "with JAX_PLATFORMS=cpu"
+            )
+        self.__dict__.update(base.__dict__)
+        spec = _lean_spec(self.xml)[1] if self.lean else mujoco.MjSpec.from_file(str(self.xml))
+        model, offset = cengine.with_force_sensors(spec)
+        model.opt.timestep = self.timestep
+        if self.edit is not None:
+            self.edit(model)
+        self.engine = cengine.CEngine(model, offset, threads or machine.cpu_threads())
+        self._data0 = cengine.nan_data(base._data0)
+
+    def with_physics(self, physics: str, threads: int | None = None) -> Sim:
+        if physics == "c" and (threads is None or threads == self.engine.threads):
+            return self
+        raise ValueError("build a C world from the MJX Sim it was made from")
+
+    def model_with(self, fields: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
+        """The params fields themselves; the C engine applies them on the host."""
+        return dict(fields)
+
+    def step(self, model: Any, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
+        return self.engine.step(_fields(model), data, ctrl, self.substeps)
+
+    def step_controlled(self, model: Any, data: mjx.Data, controller: Controller) -> mjx.Data:
+        fields = _fields(model)
+
+        def body(d: mjx.Data, _: None) -> tuple[mjx.Data, None]:
+            return self.engine.step(fields, d, controller(d), 1), None
+
+        data, _ = jax.lax.scan(body, data, None, length=self.substeps)
+        return data
+
+
+def _fields(model: Any) -> Mapping[str, jax.Array]:
+    if isinstance(model, Mapping):
+        return model
+    if model is None:
+        return {}
+    raise TypeError(
+        "physics='c': pass sim.model_with(fields) (or None) to sim.step, not an mjx.Model"
+    )
 
 
 _INERTIAL = ("body_mass", "body_inertia", "body_ipos", "body_iquat")
@@ -136,6 +212,18 @@ def physics_model(xml: str | Path) -> mujoco.MjModel:
 
 def _full_and_lean(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjModel]:
     """The full model at ``xml`` and :func:`physics_model`'s lean copy, each compiled once."""
+    full, spec = _lean_spec(xml)
+    lean = spec.compile()
+    for field in _INERTIAL:
+        if lean.nbody != full.nbody or not np.allclose(
+            getattr(lean, field), getattr(full, field), rtol=1e-9, atol=1e-12
+        ):
+            raise ValueError(f"{xml}: dropping visual elements changed {field}")
+    return full, lean
+
+
+def _lean_spec(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjSpec]:
+    """The full model at ``xml`` and the spec of its lean copy (not yet compiled)."""
     spec = mujoco.MjSpec.from_file(str(xml))
     full = spec.compile()
     bodies = spec.bodies
@@ -153,13 +241,7 @@ def _full_and_lean(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjModel]:
             spec.delete(geom)
     for element in [*spec.cameras, *spec.lights]:
         spec.delete(element)
-    lean = spec.compile()
-    for field in _INERTIAL:
-        if lean.nbody != full.nbody or not np.allclose(
-            getattr(lean, field), getattr(full, field), rtol=1e-9, atol=1e-12
-        ):
-            raise ValueError(f"{xml}: dropping visual elements changed {field}")
-    return full, lean
+    return full, spec
 
 
 def forward(model: mjx.Model, data: mjx.Data) -> mjx.Data:

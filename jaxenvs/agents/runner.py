@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
-from jaxenvs import compile_cache, files, program_cache, registry, sharding
+from jaxenvs import compile_cache, files, machine, program_cache, registry, sharding
 from jaxenvs.agents import checkpoint
 from jaxenvs.agents.base import CHUNK_METRICS, Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
@@ -377,8 +377,10 @@ def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs
     later runs (:func:`_program_store`), so a warm start skips most tracing as well as
     compiling.
     """
-    mesh = sharding.make_mesh(devices)
     env, trainer = build(resolved)
+    if devices is None and env.physics == "c":
+        devices = 1  # the C engine spreads a batch over its own threads
+    mesh = sharding.make_mesh(devices)
     init_fn: Any = None
     chunk_fn: Any = None
     if mesh.size > 1:
@@ -432,6 +434,8 @@ def _program_store(
     owners = (type(env).__module__, type(trainer).__module__, getattr(factory, "__module__", ""))
     if cache is None or not all(str(m).startswith(_STORE_MODULES) for m in owners):
         return None
+    if env.physics != "mjx":  # a stored (exported) program cannot carry a host callback
+        return None
     settings = resolved.to_dict()
     settings["train"] = {k: v for k, v in settings["train"].items() if k != "seed"}
 
@@ -481,6 +485,7 @@ def train(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     programs = _programs(resolved, devices)
+    say(machine.describe(programs.env))
     env, trainer, init_fn, chunk_fn = (
         programs.env,
         programs.trainer,
@@ -508,7 +513,9 @@ def train(
         finished = bool(meta.get("finished", False))
         say(f"resuming {out} at chunk {start}/{trainer.num_chunks}")
     else:
-        files.write_text(out / CONFIG_FILE, yaml.safe_dump(resolved.to_dict(), sort_keys=False))
+        # the env's config holds the engine "auto" resolved to (``physics``)
+        record = dataclasses.replace(resolved, env=env.config).to_dict()
+        files.write_text(out / CONFIG_FILE, yaml.safe_dump(record, sort_keys=False))
         state = init_fn(keys)
         start, wall_before, cpu_before, rows, finished = 0, 0.0, 0.0, [], False
         top = np.full((run.num_seeds, 0), -1.0, np.float32)
@@ -599,6 +606,7 @@ def train(
     returns = np.asarray(returns)
     summary = _summary(rows, returns, top, wall, done_chunks, trainer.num_chunks, finished)
     summary.update(env_id=resolved.env_id, algo=resolved.algo, interrupted=interrupted)
+    summary["physics"] = env.physics
     # process CPU time (all threads): on a shared, loaded machine a steadier figure than wall
     summary["cpu_seconds"] = round(cpu_before + time.process_time() - cpu0, 3)
     _write_json(out / SUMMARY_FILE, summary)
@@ -683,9 +691,20 @@ def write_policy_video(
 
 
 # ------------------------------------------------------------------ using a finished run
-def restore(run_dir: str | Path) -> tuple[ResolvedConfig, Env, Trainer, PyTree]:
-    """Config, env, trainer and the (seed-batched) runner state of a run directory."""
-    resolved = load_run_config(run_dir)
+def with_physics(resolved: ResolvedConfig, physics: str | None) -> ResolvedConfig:
+    """``resolved`` with its env stepped by ``physics`` (``None``: as it is)."""
+    if physics is None:
+        return resolved
+    env = apply_overrides(resolved.env, {"physics": physics}, "--physics")
+    return dataclasses.replace(resolved, env=env)
+
+
+def restore(
+    run_dir: str | Path, physics: str | None = None
+) -> tuple[ResolvedConfig, Env, Trainer, PyTree]:
+    """Config, env, trainer and the (seed-batched) runner state of a run directory;
+    ``physics`` steps the env with another engine than the run's (cross-engine eval)."""
+    resolved = with_physics(load_run_config(run_dir), physics)
     env, trainer = build(resolved)
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     template = jax.eval_shape(jax.vmap(trainer.init), keys)
@@ -702,14 +721,15 @@ def _best_seed(run_dir: Path, num_seeds: int) -> int:
 
 
 def load_policy(
-    run_dir: str | Path,
+    run_dir: str | Path, physics: str | None = None
 ) -> tuple[str, Env, Callable[[jax.Array, jax.Array], jax.Array]]:
     """``(env_id, env, act_fn)`` of a run: ``act_fn(obs, key) -> action`` for ONE obs.
 
     The policy is the greedy policy of the seed with the best final evaluation (seed 0
-    when there is no summary). ``act_fn`` is jittable and vmappable.
+    when there is no summary). ``act_fn`` is jittable and vmappable. ``physics`` builds
+    the env with another engine than the run's.
     """
-    resolved, env, trainer, state = restore(run_dir)
+    resolved, env, trainer, state = restore(run_dir, physics)
     seed = _best_seed(Path(run_dir), resolved.train.num_seeds)
     params = jax.tree.map(lambda x: x[seed], jax.vmap(trainer.policy_params)(state))
 
@@ -720,10 +740,15 @@ def load_policy(
 
 
 def evaluate_run(
-    run_dir: str | Path, episodes: int, seed: int | None = None, video: str | Path | None = None
+    run_dir: str | Path,
+    episodes: int,
+    seed: int | None = None,
+    video: str | Path | None = None,
+    physics: str | None = None,
 ) -> dict[str, Any]:
-    """Greedy evaluation of every seed of a run from its checkpoint (and a video)."""
-    resolved, env, trainer, state = restore(run_dir)
+    """Greedy evaluation of every seed of a run from its checkpoint (and a video);
+    ``physics`` evaluates under another engine than the one it trained on."""
+    resolved, env, trainer, state = restore(run_dir, physics)
     k = resolved.train.seed + 1 if seed is None else seed
     params = jax.vmap(trainer.policy_params)(state)
     evaluate = jax.jit(jax.vmap(make_evaluator(env, trainer.act, episodes), in_axes=(0, None)))
@@ -732,6 +757,7 @@ def evaluate_run(
     result = {
         "env_id": resolved.env_id,
         "algo": resolved.algo,
+        "physics": env.physics,
         "episodes": int(returns.size),
         "mean_return": float(returns.mean()),
         "std_return": float(returns.std()),

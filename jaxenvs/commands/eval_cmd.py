@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from jaxenvs.commands import engine_args
+
 HELP = "evaluate the greedy policy of a run directory (return mean/std, optional video)"
 
 
@@ -14,6 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="evaluation seed (default: the run's seed + 1)")
     parser.add_argument("--video", metavar="OUT.mp4", help="render one greedy episode")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    engine_args.add(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -21,13 +24,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-    result = runner.evaluate_run(args.run_dir, args.episodes, args.seed, args.video)
+    result = runner.evaluate_run(
+        args.run_dir, args.episodes, args.seed, args.video, physics=args.physics
+    )
     if args.json:
         print(json.dumps(result, indent=2))
         return 0
     print(
-        f"{result['algo']} on {result['env_id']}: return {result['mean_return']:.2f} "
-        f"+- {result['std_return']:.2f} over {result['episodes']} episodes"
+        f"{result['algo']} on {result['env_id']} (physics {result['physics']}): return "
+        f"{result['mean_return']:.2f} +- {result['std_return']:.2f} over "
+        f"{result['episodes']} episodes"
     )
     if args.video:
         print(f"video: {result['video']}" if result["video"] else result["video_error"])

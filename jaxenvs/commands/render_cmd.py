@@ -13,6 +13,8 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
+from jaxenvs.commands import engine_args
+
 HELP = "render a video of an env with random actions or a trained policy (--policy RUN_DIR)"
 
 
@@ -26,18 +28,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--height", type=int, default=480, help="frame height (default 480)")
     parser.add_argument("--camera", help="camera name or index (default: the task's)")
     parser.add_argument("--fps", type=float, help="video frame rate (default: real time)")
+    engine_args.add(parser)
 
 
 ActFn = Callable[[Any, Any], Any]
 
 
-def _policy(run_dir: str, env_id: str) -> tuple[Any, ActFn]:
+def _policy(run_dir: str, env_id: str, physics: str | None = None) -> tuple[Any, ActFn]:
     """The run's env and greedy ``act_fn(obs, key)``; the run must be of ``env_id``."""
     try:
         from jaxenvs.agents import runner
     except ImportError as err:
         raise ValueError(f"--policy needs jaxenvs.agents.runner, which failed: {err}") from err
-    loaded = runner.load_policy(run_dir)
+    loaded = runner.load_policy(run_dir, physics)
     run_env_id, env, act_fn = loaded if len(loaded) == 3 else (loaded[0], None, loaded[-1])
     if run_env_id != env_id:
         raise ValueError(f"{run_dir} is a run of {run_env_id}, not {env_id}")
@@ -88,14 +91,16 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     render.check_video_path(args.out)
     camera = int(args.camera) if args.camera is not None and args.camera.isdigit() else args.camera
-    env = jaxenvs.make(args.env_id)
+    physics = {} if args.physics is None else {"physics": args.physics}
+    env = jaxenvs.make(args.env_id, **physics)
     if args.policy:
-        run_env, act_fn = _policy(args.policy, args.env_id)
+        run_env, act_fn = _policy(args.policy, args.env_id, args.physics)
         env = run_env or env
     else:
         act_fn = _random_act(env)
     render.Renderer(env, args.width, args.height, camera).close()  # bad camera/size: fail now
     render.select_gl_backend()  # fail before the rollout when nothing can render
+    engine_args.say(env)
     states = rollout(env, act_fn, args.steps, args.seed)
     frames = render.render_frames(env, states, width=args.width, height=args.height, camera=camera)
     fps = args.fps if args.fps is not None else 1.0 / env.control_dt

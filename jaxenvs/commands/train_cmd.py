@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from jaxenvs.commands import engine_args
+
 HELP = "train an agent (qlearning, sarsa, ppo) and write its results to a run directory"
 
 #: flags that set a field of the agent config / of the run config
@@ -40,6 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-compile-cache", action="store_true", help="do not use the persistent compile cache"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar or notices")
+    engine_args.add(parser)
 
 
 def _enable_compile_cache(args: argparse.Namespace) -> None:
@@ -57,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxenvs.cli import UserError
 
     if args.resume:
-        given = ("env_id", "algo", "config", "out", *AGENT_FLAGS, *RUN_FLAGS)
+        given = ("env_id", "algo", "config", "out", "physics", *AGENT_FLAGS, *RUN_FLAGS)
         clash = [f for f in given if getattr(args, f) is not None]
         if clash:
             raise UserError(
@@ -78,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
             agent_overrides={k: getattr(args, f) for f, k in AGENT_FLAGS.items()},
             train_overrides=train_overrides,
         )
+        resolved = runner.with_physics(resolved, args.physics)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         out = Path(args.out or f"runs/{resolved.env_id}-{resolved.algo}-{stamp}")
         if (out / runner.CHECKPOINT_FILE).exists():

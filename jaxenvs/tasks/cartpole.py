@@ -139,6 +139,9 @@ class CartPole(Env[CartPoleConfig]):
     * Timing: 0.02 s per step (MJX semi-implicit Euler, one 0.02 s substep).
     """
 
+    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    cpu_physics = "c"
+
     scan_unroll = 5
 
     def __init__(self, config: CartPoleConfig | None = None) -> None:
@@ -258,6 +261,9 @@ class CartpoleStayUp(Env[StayUpConfig]):
     ``extras`` holds the commanded cart velocity.
     """
 
+    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    cpu_physics = "c"
+
     metric_keys = ("command",)
 
     def __init__(self, config: StayUpConfig | None = None) -> None:
@@ -356,6 +362,9 @@ class CartpoleBalance(Env[BalanceConfig]):
       velocities ~ 0.01 N(0, 1).
     * Timing: 0.01 s per step, one Euler substep.
     """
+
+    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    cpu_physics = "c"
 
     scan_unroll = 5
 

@@ -40,6 +40,7 @@ import math
 import jax
 import jax.numpy as jnp
 import mujoco
+import numpy as np
 from flax import struct
 from mujoco import mjx
 
@@ -52,7 +53,8 @@ from jaxenvs.sim import Sim
 
 COXA, FEMUR, TIP = 0.04, 0.08, 0.132  # m: hip->femur joint, femur->tibia joint, knee->tip
 LEG_RANGE = (0.46, 1.57, 1.57)  # half-ranges of hip yaw, femur, tibia (rad)
-JOINT_RANGE = jnp.asarray(LEG_RANGE * 6, jnp.float32)
+#: a host constant (numpy): a JAX array here would start JAX's backends at import time
+JOINT_RANGE = np.asarray(LEG_RANGE * 6, np.float32)
 STAND_HEIGHT = 0.135  # torso height when standing on all six feet at zero angles (m)
 WALK_FIELDS = (
     "body_mass",
@@ -223,6 +225,9 @@ class HexapodWalk(Env[WalkConfig]):
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s.
     """
 
+    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    cpu_physics = "c"
+
     metric_keys = ("distance", "progress", "energy")
     #: the test battery's vmap-vs-single tolerance: the 6-iteration CG contact solve
     #: amplifies the batched program's last-bit differences (measured after one control
@@ -340,6 +345,9 @@ class HexapodOneLeg(Env[OneLegConfig]):
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s; gravity on; no
       contacts or constraints.
     """
+
+    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    cpu_physics = "c"
 
     metric_keys = ("distance",)
 

@@ -179,6 +179,9 @@ class Reacher(Env[ReacherConfig]):
     ``extras`` is unused (the target lives in ``data.mocap_pos``).
     """
 
+    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    cpu_physics = "c"
+
     metric_keys = ("distance", "ctrl_cost")
     #: 2: 1.05x the env steps/s of 1 at 16,384 envs on the 2-core CPU for 3.5 s more
     #: compile; 3 was 1.18x but its first call came within a second or two of 20 s.
