@@ -16,6 +16,8 @@ import io as _io
 with _contextlib.redirect_stdout(_io.StringIO()):
     from mujoco import mjx as _mjx  # noqa: F401
 
+# the Gymnasium facade registers every id (and every later one) as ``jaxenvs/<id>``
+from jaxenvs.compat import gymnasium as _gymnasium  # noqa: F401
 from jaxenvs.config import ConfigError
 from jaxenvs.core import BatchedEnv, Env, State
 from jaxenvs.registry import list_envs, make, register, spec

@@ -2,7 +2,8 @@
 
 An explicit table, filled in one place (``_builtin``) for our own tasks and by
 :func:`register` for users' tasks; nothing registers itself as an import side effect
-elsewhere in jaxenvs.
+elsewhere in jaxenvs. Views of the table kept elsewhere (the Gymnasium facade's ids) follow
+it through :func:`add_listener`; this module imports none of them.
 
 Users' packages register their tasks when imported. Two ways make that happen for code
 that only knows an id (the command line, a run directory's config): an id of the form
@@ -44,6 +45,8 @@ class EnvSpec:
 
 
 _REGISTRY: dict[str, EnvSpec] = {}
+#: called with every spec :func:`register` stores (see :func:`add_listener`)
+_LISTENERS: list[Callable[[EnvSpec], None]] = []
 
 
 def register(
@@ -70,21 +73,21 @@ def register(
         raise ValueError(f"env id {env_id!r} is already registered (pass overwrite=True)")
     spec = EnvSpec(env_id, factory, config, description, reward_threshold)
     _REGISTRY[env_id] = spec
-    _notify_gymnasium(spec)
+    for listener in _LISTENERS:
+        listener(spec)
     return spec
 
 
-def _notify_gymnasium(spec: EnvSpec) -> None:
-    """Register with Gymnasium too when the facade is available."""
-    try:
-        gym_compat = importlib.import_module("jaxenvs.compat.gymnasium")
-    except ModuleNotFoundError as err:  # facade not built yet
-        if err.name != "jaxenvs.compat.gymnasium":
-            raise
-        return
-    register_spec = getattr(gym_compat, "register_spec", None)
-    if register_spec is not None:
-        register_spec(spec)
+def add_listener(listener: Callable[[EnvSpec], None]) -> None:
+    """Call ``listener(spec)`` for every id registered so far and every later
+    :func:`register` (re-registrations included).
+
+    This is how other views of the table follow it without this module importing them:
+    the Gymnasium facade (:mod:`jaxenvs.compat.gymnasium`) adds itself when imported.
+    """
+    _LISTENERS.append(listener)
+    for spec in list(_REGISTRY.values()):
+        listener(spec)
 
 
 ENTRY_POINT_GROUP = "jaxenvs.envs"

@@ -34,7 +34,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -454,6 +454,201 @@ def _program_store(
     return store
 
 
+class RunState(NamedTuple):
+    """What a run has committed after ``chunk`` chunks: the runner state, the rows of
+    progress.csv, the longest episode lengths per seed (``top``) and whether the run is
+    over. The checkpoint on disk always holds the last committed one."""
+
+    state: PyTree
+    rows: list[dict[str, Any]]
+    top: np.ndarray
+    finished: bool
+    chunk: int
+
+
+@dataclasses.dataclass(frozen=True)
+class _Clock:
+    """Wall and process-CPU seconds of a run, those of earlier calls (resume) included."""
+
+    t0: float
+    cpu0: float
+    wall_before: float = 0.0
+    cpu_before: float = 0.0
+
+    def wall(self) -> float:
+        return self.wall_before + time.perf_counter() - self.t0
+
+    def cpu(self) -> float:
+        return self.cpu_before + time.process_time() - self.cpu0
+
+
+@dataclasses.dataclass(frozen=True)
+class _Run:
+    """What every step of :func:`train` needs besides the :class:`RunState`."""
+
+    resolved: ResolvedConfig
+    out: Path
+    programs: _Programs
+    params_fn: Callable[[PyTree], PyTree]
+    keys: jax.Array
+    template: PyTree  # the runner state's structure (``eval_shape``)
+    columns: list[str]  # of progress.csv
+    say: Callable[[str], None]
+
+    @property
+    def trainer(self) -> Trainer:
+        return self.programs.trainer
+
+    @property
+    def num_seeds(self) -> int:
+        return self.resolved.train.num_seeds
+
+
+def _prepare(
+    resolved: ResolvedConfig, out: Path, devices: int | None, say: Callable[[str], None]
+) -> _Run:
+    programs = _programs(resolved, devices)
+    say(machine.describe(programs.env))
+    keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
+    params_fn = jax.vmap(programs.trainer.policy_params)
+    template = jax.eval_shape(programs.init_fn, keys)
+    metric_shapes = jax.eval_shape(programs.chunk_fn, template)[1]
+    columns = _metric_columns(metric_shapes)
+    return _Run(resolved, out, programs, params_fn, keys, template, columns, say)
+
+
+def _save_checkpoint(run: _Run, clock: _Clock, rs: RunState) -> None:
+    checkpoint.save(
+        run.out / CHECKPOINT_FILE,
+        rs.state,
+        {
+            "chunk": rs.chunk,
+            "wall_seconds": clock.wall(),
+            "cpu_seconds": clock.cpu(),
+            "top_lengths": rs.top.tolist(),
+            "finished": rs.finished,
+            "env_id": run.resolved.env_id,
+            "algo": run.resolved.algo,
+        },
+    )
+
+
+def _start(run: _Run, clock: _Clock) -> RunState:
+    """A fresh run: config.yaml, the initial state and its checkpoint (chunk 0)."""
+    # the env's config holds the engine "auto" resolved to (``physics``)
+    record = dataclasses.replace(run.resolved, env=run.programs.env.config).to_dict()
+    files.write_text(run.out / CONFIG_FILE, yaml.safe_dump(record, sort_keys=False))
+    state = run.programs.init_fn(run.keys)
+    rs = RunState(state, [], np.full((run.num_seeds, 0), -1.0, np.float32), False, 0)
+    _save_checkpoint(run, clock, rs)
+    return rs
+
+
+def _resume(run: _Run, clock: _Clock) -> tuple[RunState, _Clock]:
+    """The committed state of the checkpoint, progress.csv's rows up to it, and the clock
+    counting the seconds already spent."""
+    state, meta = checkpoint.load(run.out / CHECKPOINT_FILE, run.template)
+    start = int(meta["chunk"])
+    clock = dataclasses.replace(
+        clock,
+        wall_before=float(meta["wall_seconds"]),
+        cpu_before=float(meta.get("cpu_seconds", 0.0)),
+    )
+    top = np.asarray(meta["top_lengths"], np.float32).reshape(run.num_seeds, -1)
+    rows = [r for r in _read_progress(run.out / PROGRESS_FILE) if int(r["chunk"]) < start]
+    finished = bool(meta.get("finished", False))
+    run.say(f"resuming {run.out} at chunk {start}/{run.trainer.num_chunks}")
+    return RunState(state, rows, top, finished, start), clock
+
+
+def _chunk_rows(
+    run: _Run, clock: _Clock, chunk: int, metrics: Mapping[str, Any], eval_mean: float
+) -> list[dict[str, Any]]:
+    """progress.csv's rows of one chunk, one per seed."""
+    wall, cpu = clock.wall(), clock.cpu()
+    rows = []
+    for k in range(run.num_seeds):
+        row: dict[str, Any] = {c: _fmt(metrics[c][k]) for c in run.columns if c in metrics}
+        row.update(chunk=chunk, seed=k, wall_seconds=f"{wall:.3f}")
+        row["cpu_seconds"] = f"{cpu:.3f}"
+        row["eval_return"] = _fmt(eval_mean)
+        rows.append(row)
+    return rows
+
+
+def _top_lengths(top: np.ndarray, metrics: Mapping[str, Any]) -> np.ndarray:
+    """The (at most 100) longest episodes per seed, with those of a new chunk."""
+    if "top_lengths" not in metrics:
+        return top
+    both = np.concatenate([top, np.asarray(metrics["top_lengths"], np.float32)], 1)
+    return -np.sort(-both, axis=1)[:, : min(100, both.shape[1])]
+
+
+def _run_chunk(run: _Run, clock: _Clock, rs: RunState) -> tuple[RunState, Any, float]:
+    """One chunk as a transaction: compute the next :class:`RunState`, write progress.csv
+    and the checkpoint, and only then hand it back (the commit). Returns it with the
+    chunk's metrics and its compute seconds."""
+    train_cfg, num_chunks = run.resolved.train, run.trainer.num_chunks
+    last = time.perf_counter()
+    state, metrics = run.programs.chunk_fn(rs.state)
+    metrics = jax.device_get(metrics)
+    seconds = time.perf_counter() - last
+    eval_mean = math.nan
+    if train_cfg.eval_every and (rs.chunk + 1) % train_cfg.eval_every == 0:
+        returns, _, _ = run.programs.evaluate(run.params_fn(state), eval_key(train_cfg.seed))
+        eval_mean = float(np.mean(returns))
+    rows = rs.rows + _chunk_rows(run, clock, rs.chunk, metrics, eval_mean)
+    finished = rs.chunk + 1 >= num_chunks
+    if "active_envs" in metrics and not np.any(np.asarray(metrics["active_envs"]) > 0):
+        finished = True
+    nxt = RunState(state, rows, _top_lengths(rs.top, metrics), finished, rs.chunk + 1)
+    _write_progress(run.out / PROGRESS_FILE, run.columns, nxt.rows)
+    _save_checkpoint(run, clock, nxt)
+    return nxt, metrics, seconds
+
+
+def _progress_postfix(metrics: Mapping[str, Any], seconds: float, steps: int) -> dict[str, str]:
+    """The progress bar's figures of a chunk of ``steps`` env steps (all seeds)."""
+    postfix = {
+        "ep/s": f"{float(np.sum(metrics['episodes_in_chunk'])) / seconds:.0f}",
+        "steps/s": f"{steps / seconds:.3g}",
+        "return": f"{np.nanmean(metrics['mean_return']):.1f}"
+        if np.any(np.isfinite(metrics["mean_return"]))
+        else "-",
+    }
+    rk = _rate_key(metrics)
+    if rk is not None:
+        postfix[rk] = f"{float(np.mean(metrics[rk])):.3g}"
+    return postfix
+
+
+def _finish(run: _Run, clock: _Clock, rs: RunState, interrupted: bool) -> dict[str, Any]:
+    """The final evaluation, summary.json, the learning curve and (unless interrupted)
+    the video of the best seed; returns the summary."""
+    train_cfg, out = run.resolved.train, run.out
+    wall = clock.wall()
+    result = run.programs.evaluate(run.params_fn(rs.state), eval_key(train_cfg.seed))
+    returns, trajectory, lengths = jax.device_get(result)
+    returns = np.asarray(returns)
+    summary = _summary(
+        rs.rows, returns, rs.top, wall, rs.chunk, run.trainer.num_chunks, rs.finished
+    )
+    summary.update(env_id=run.resolved.env_id, algo=run.resolved.algo, interrupted=interrupted)
+    summary["physics"] = run.programs.env.physics
+    # process CPU time (all threads): on a shared, loaded machine a steadier figure than wall
+    summary["cpu_seconds"] = round(clock.cpu(), 3)
+    _write_json(out / SUMMARY_FILE, summary)
+    try:
+        plot_curves([out], out / CURVE_FILE)
+    except Exception as err:  # noqa: BLE001 - a plot must never lose the results
+        run.say(f"no learning curve: {err}")
+    if train_cfg.video and not interrupted:
+        best = int(np.argmax(returns.mean(axis=1)))
+        traj = jax.tree.map(lambda x: x[best], trajectory)
+        write_policy_video(run.programs.env, traj, int(lengths[best]), out / VIDEO_FILE, run.say)
+    return summary
+
+
 def train(
     resolved: ResolvedConfig,
     out_dir: str | Path,
@@ -480,144 +675,37 @@ def train(
     Ctrl-C stops after the chunk in flight is discarded: the checkpoint of the last
     finished chunk stays valid, and the results so far are written.
     """
-    t0, cpu0 = time.perf_counter(), time.process_time()
+    clock = _Clock(time.perf_counter(), time.process_time())
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    programs = _programs(resolved, devices)
-    say(machine.describe(programs.env))
-    env, trainer, init_fn, chunk_fn = (
-        programs.env,
-        programs.trainer,
-        programs.init_fn,
-        programs.chunk_fn,
-    )
-    evaluate = programs.evaluate
-    run = resolved.train
-    keys = seed_keys(run.seed, run.num_seeds)
-    params_fn = jax.vmap(trainer.policy_params)
-    template = jax.eval_shape(init_fn, keys)
-    metric_shapes = jax.eval_shape(chunk_fn, template)[1]
-    columns = _metric_columns(metric_shapes)
-    ckpt_path = out / CHECKPOINT_FILE
-
+    run = _prepare(resolved, out, devices, say)
     if resume:
-        state, meta = checkpoint.load(ckpt_path, template)
-        start = int(meta["chunk"])
-        wall_before = float(meta["wall_seconds"])
-        cpu_before = float(meta.get("cpu_seconds", 0.0))
-        top = np.asarray(meta["top_lengths"], np.float32).reshape(run.num_seeds, -1)
-        rows: list[dict[str, Any]] = [
-            r for r in _read_progress(out / PROGRESS_FILE) if int(r["chunk"]) < start
-        ]
-        finished = bool(meta.get("finished", False))
-        say(f"resuming {out} at chunk {start}/{trainer.num_chunks}")
+        rs, clock = _resume(run, clock)
     else:
-        # the env's config holds the engine "auto" resolved to (``physics``)
-        record = dataclasses.replace(resolved, env=env.config).to_dict()
-        files.write_text(out / CONFIG_FILE, yaml.safe_dump(record, sort_keys=False))
-        state = init_fn(keys)
-        start, wall_before, cpu_before, rows, finished = 0, 0.0, 0.0, [], False
-        top = np.full((run.num_seeds, 0), -1.0, np.float32)
-
-    def save_checkpoint(state: PyTree, chunk: int, top: np.ndarray, finished: bool) -> None:
-        checkpoint.save(
-            ckpt_path,
-            state,
-            {
-                "chunk": chunk,
-                "wall_seconds": wall_before + time.perf_counter() - t0,
-                "cpu_seconds": cpu_before + time.process_time() - cpu0,
-                "top_lengths": top.tolist(),
-                "finished": finished,
-                "env_id": resolved.env_id,
-                "algo": resolved.algo,
-            },
-        )
-
-    done_chunks = start
-    if not resume:
-        save_checkpoint(state, done_chunks, top, finished)
-    stop = trainer.num_chunks if max_chunks is None else min(trainer.num_chunks, start + max_chunks)
+        rs = _start(run, clock)
+    num_chunks, steps = run.trainer.num_chunks, run.trainer.steps_per_chunk
+    stop = num_chunks if max_chunks is None else min(num_chunks, rs.chunk + max_chunks)
     bar = _Progress(
-        trainer.num_chunks * trainer.steps_per_chunk,
-        start * trainer.steps_per_chunk,
-        quiet,
-        f"{resolved.algo} {resolved.env_id}",
+        num_chunks * steps, rs.chunk * steps, quiet, f"{resolved.algo} {resolved.env_id}"
     )
     interrupted = False
-
-    # Each chunk is a transaction: compute into new_*, write progress.csv and the
-    # checkpoint, then commit. Ctrl-C before the commit leaves the previous chunk's state,
-    # which is exactly what the checkpoint on disk holds.
+    # Ctrl-C inside _run_chunk discards the chunk in flight: ``rs`` stays the previous
+    # chunk's, which is exactly what the checkpoint on disk holds.
     try:
-        while done_chunks < stop and not finished:
-            last = time.perf_counter()
-            new_state, metrics = chunk_fn(state)
-            metrics = jax.device_get(metrics)
-            now = time.perf_counter()
-            eval_mean = math.nan
-            if run.eval_every and (done_chunks + 1) % run.eval_every == 0:
-                returns, _, _ = evaluate(params_fn(new_state), eval_key(run.seed))
-                eval_mean = float(np.mean(returns))
-            wall = wall_before + time.perf_counter() - t0
-            cpu = cpu_before + time.process_time() - cpu0
-            new_rows = list(rows)
-            for k in range(run.num_seeds):
-                row: dict[str, Any] = {c: _fmt(metrics[c][k]) for c in columns if c in metrics}
-                row.update(chunk=done_chunks, seed=k, wall_seconds=f"{wall:.3f}")
-                row["cpu_seconds"] = f"{cpu:.3f}"
-                row["eval_return"] = _fmt(eval_mean)
-                new_rows.append(row)
-            new_top = top
-            if "top_lengths" in metrics:
-                both = np.concatenate([top, np.asarray(metrics["top_lengths"], np.float32)], 1)
-                new_top = -np.sort(-both, axis=1)[:, : min(100, both.shape[1])]
-            new_finished = done_chunks + 1 >= trainer.num_chunks
-            if "active_envs" in metrics and not np.any(np.asarray(metrics["active_envs"]) > 0):
-                new_finished = True
-            _write_progress(out / PROGRESS_FILE, columns, new_rows)
-            save_checkpoint(new_state, done_chunks + 1, new_top, new_finished)
-            state, rows, top, finished = new_state, new_rows, new_top, new_finished
-            done_chunks += 1
-            rk = _rate_key(metrics)
-            postfix = {
-                "ep/s": f"{float(np.sum(metrics['episodes_in_chunk'])) / (now - last):.0f}",
-                "steps/s": f"{trainer.steps_per_chunk * run.num_seeds / (now - last):.3g}",
-                "return": f"{np.nanmean(metrics['mean_return']):.1f}"
-                if np.any(np.isfinite(metrics["mean_return"]))
-                else "-",
-            }
-            if rk is not None:
-                postfix[rk] = f"{float(np.mean(metrics[rk])):.3g}"
-            bar.update(trainer.steps_per_chunk, postfix)
+        while rs.chunk < stop and not rs.finished:
+            rs, metrics, seconds = _run_chunk(run, clock, rs)
+            bar.update(steps, _progress_postfix(metrics, seconds, steps * run.num_seeds))
     except KeyboardInterrupt:
         interrupted = True
-        _write_progress(out / PROGRESS_FILE, columns, rows)
+        _write_progress(out / PROGRESS_FILE, run.columns, rs.rows)
         say(
-            f"interrupted: results and checkpoint are of chunk {done_chunks}; resume with "
+            f"interrupted: results and checkpoint are of chunk {rs.chunk}; resume with "
             f"--resume {out}"
         )
     finally:
         bar.close()
-
-    wall = wall_before + time.perf_counter() - t0
-    returns, trajectory, lengths = jax.device_get(evaluate(params_fn(state), eval_key(run.seed)))
-    returns = np.asarray(returns)
-    summary = _summary(rows, returns, top, wall, done_chunks, trainer.num_chunks, finished)
-    summary.update(env_id=resolved.env_id, algo=resolved.algo, interrupted=interrupted)
-    summary["physics"] = env.physics
-    # process CPU time (all threads): on a shared, loaded machine a steadier figure than wall
-    summary["cpu_seconds"] = round(cpu_before + time.process_time() - cpu0, 3)
-    _write_json(out / SUMMARY_FILE, summary)
-    try:
-        plot_curves([out], out / CURVE_FILE)
-    except Exception as err:  # noqa: BLE001 - a plot must never lose the results
-        say(f"no learning curve: {err}")
-    if run.video and not interrupted:
-        best = int(np.argmax(returns.mean(axis=1)))
-        traj = jax.tree.map(lambda x: x[best], trajectory)
-        write_policy_video(env, traj, int(lengths[best]), out / VIDEO_FILE, say)
+    summary = _finish(run, clock, rs, interrupted)
     if interrupted:
         raise KeyboardInterrupt
     return summary

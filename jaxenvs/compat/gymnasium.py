@@ -597,5 +597,4 @@ class JaxVectorEnv(VectorEnv):
             self._renderer = None
 
 
-for _env_id in registry.list_envs():
-    register_spec(registry.spec(_env_id))
+registry.add_listener(register_spec)
