@@ -1,0 +1,214 @@
+"""MuJoCo's C engine (``physics="c"``) under the functional API, for every task.
+
+What these check: the engine switch (``auto`` resolution, the GPU refusal); that after a
+C step every field a task reads holds what MJX gives after the same step (obs, reward,
+termination and the task's metrics compared for EVERY registered task, so a task that
+reads a field the C engine does not fill - those are NaN - fails here loudly); jit, nested
+vmap, the auto-reset and determinism (bit-identical, whatever the thread count); per-env
+params (domain randomisation) honoured; unknown params fields refused by name.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxenvs
+from jaxenvs import cengine, machine
+from jaxenvs.core import resolve_physics
+from jaxenvs.tasks.cartpole import BalanceConfig, CartpoleBalance
+from jaxenvs.testing import TaskCheckError, check_engine_parity, check_task, random_actions
+
+BUILTIN = [
+    "CartPole-v0",
+    "CartpoleStayUp-v0",
+    "CartpoleBalance-v0",
+    "CartpoleSwingup-v0",
+    "Reacher-v0",
+    "HexapodWalk-v0",
+    "HexapodOneLeg-v0",
+]
+
+
+def test_every_registered_task_is_checked_here():
+    assert set(BUILTIN) <= set(jaxenvs.list_envs())
+
+
+@pytest.mark.parametrize("env_id", BUILTIN)
+def test_engine_parity(env_id):
+    """Obs, reward, termination and metrics agree between MJX and C step by step.
+
+    The walker starts 0.3 m up and is compared over its first two control steps, before
+    its feet reach the floor: in contact, MJX's and MuJoCo's solvers part from the first
+    touch (their agreement on the ground is checked with test_hexapod's tolerances by
+    test_walker_contact_parity below). The other tasks: 30 control steps.
+    """
+    if env_id == "HexapodWalk-v0":
+        check_engine_parity(env_id, steps=2, init_height=0.3)
+    else:
+        check_engine_parity(env_id, steps=30)
+
+
+class _ReadsBodyPositions(CartpoleBalance):
+    """A task whose observation reads ``xpos``, a field only MJX computes."""
+
+    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+        return jnp.concatenate([super()._observe(data, extras, params), data.xpos[2]])
+
+    @property
+    def observation_size(self) -> int:  # type: ignore[override]
+        return 8
+
+
+def test_a_task_reading_an_unfilled_field_fails_parity_loudly():
+    jaxenvs.register(
+        "ReadsXpos-v0", _ReadsBodyPositions, BalanceConfig(), "test task", overwrite=True
+    )
+    with pytest.raises(TaskCheckError, match="engine_parity.*obs"):
+        check_engine_parity("ReadsXpos-v0", steps=2)
+
+
+def test_auto_resolution_and_gpu_refusal():
+    assert resolve_physics("auto", "c", backend="cpu") == "c"
+    assert resolve_physics("auto", "c", backend="gpu") == "mjx"
+    assert resolve_physics("auto", "mjx", backend="cpu") == "mjx"
+    with pytest.raises(ValueError, match="CPU.*physics='mjx'"):
+        resolve_physics("c", "c", backend="gpu")
+    with pytest.raises(ValueError, match="physics must be one of"):
+        resolve_physics("warp", "c")
+    with pytest.raises(jaxenvs.ConfigError, match="physics"):
+        jaxenvs.make("CartPole-v0", physics="C")
+
+
+def test_the_built_env_records_its_engine():
+    env = jaxenvs.make("Reacher-v0")  # auto
+    assert env.physics == env.config.physics == ("c" if jax.default_backend() == "cpu" else "mjx")
+    assert jaxenvs.make("Reacher-v0", physics="mjx").config.physics == "mjx"
+
+
+def test_unfilled_fields_are_nan_and_filled_ones_finite():
+    env = jaxenvs.make("HexapodWalk-v0", physics="c")
+    state = jax.jit(env.step)(jax.jit(env.reset)(jax.random.key(0)), jnp.zeros(18))
+    data = state.data
+    for name in cengine.WRITTEN + cengine.READ:
+        assert np.all(np.isfinite(np.asarray(getattr(data, name)))), name
+    assert np.all(np.isnan(np.asarray(data.xpos)))
+    assert np.all(np.isnan(np.asarray(data.qacc)))
+    assert float(jnp.abs(data.actuator_force).max()) > 0  # the servos hold the stance
+
+
+def test_battery_under_c():
+    check_task(jaxenvs.make("CartpoleStayUp-v0", physics="c"), num_envs=4, rollout_steps=120)
+
+
+def test_nested_vmap_seeds_by_envs_matches_per_seed_runs():
+    benv = jaxenvs.make("CartPole-v0", num_envs=3, physics="c")
+    keys = jax.random.split(jax.random.key(0), 2)
+
+    def roll(key):
+        state = benv.reset(key)
+
+        def body(s, k):
+            s = benv.step(s, random_actions(benv.env, k, (3,)))
+            return s, (s.obs, s.reward, s.done)
+
+        return jax.lax.scan(body, state, jax.random.split(key, 40))[1]
+
+    together = jax.jit(jax.vmap(roll))(keys)
+    for i in range(2):
+        alone = jax.jit(roll)(keys[i])
+        for a, b in zip(together, alone, strict=True):
+            np.testing.assert_array_equal(np.asarray(a[i]), np.asarray(b))
+    assert np.asarray(together[2]).any()  # episodes ended and auto-reset inside the scan
+
+
+def _trajectory(benv, key, steps=60):
+    def roll(key):
+        def body(s, k):
+            s = benv.step(s, random_actions(benv.env, k, (benv.num_envs,)))
+            return s, (s.obs, s.data.qpos, s.done)
+
+        return jax.lax.scan(body, benv.reset(key), jax.random.split(key, steps))[1]
+
+    return jax.device_get(jax.jit(roll)(key))
+
+
+def test_same_key_same_trajectory_whatever_the_thread_count(monkeypatch):
+    monkeypatch.setattr(machine, "_cores", 2)
+    two = jaxenvs.make("CartpoleBalance-v0", num_envs=32, physics="c", randomize=True)
+    monkeypatch.setattr(machine, "_cores", 1)
+    one = jaxenvs.make("CartpoleBalance-v0", num_envs=32, physics="c", randomize=True)
+    assert (two.env.sim.engine.threads, one.env.sim.engine.threads) == (2, 1)
+    monkeypatch.setattr(cengine, "SERIAL_WORK", 0)  # the 2-thread env really uses its pool
+    a = _trajectory(two, jax.random.key(1))
+    b = _trajectory(two, jax.random.key(1))
+    c = _trajectory(one, jax.random.key(1))
+    for x, y, z in zip(a, b, c, strict=True):
+        np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(x, z)
+
+
+def test_domain_randomisation_is_honoured():
+    """Per-env params reach the C model: C agrees with MJX env by env, and envs whose
+    params differ move differently from the same start."""
+    c = jaxenvs.make("CartpoleBalance-v0", num_envs=8, randomize=True, physics="c")
+    m = jaxenvs.make("CartpoleBalance-v0", num_envs=8, randomize=True, physics="mjx")
+    oc, qc, _ = _trajectory(c, jax.random.key(2), steps=40)
+    om, _, _ = _trajectory(m, jax.random.key(2), steps=40)
+    np.testing.assert_allclose(oc, om, atol=1e-4, rtol=1e-4)
+    # the same start and actions under two different draws of the params
+    env = c.env
+    state = env.reset(jax.random.key(3))
+    p1, p2 = env.sample_params(jax.random.key(4)), env.sample_params(jax.random.key(5))
+    params = jax.tree.map(lambda a, b: jnp.stack([a, b]), p1, p2)
+    states = jax.tree.map(lambda x: jnp.stack([x, x]), state)
+    step = jax.jit(jax.vmap(env.step))
+    for _ in range(20):
+        states = step(states, jnp.ones((2, 1)), params)
+    qpos = np.asarray(states.data.qpos)
+    assert np.abs(qpos[0] - qpos[1]).max() > 1e-3
+
+
+def test_unknown_params_field_is_refused_by_name():
+    env = jaxenvs.make("CartpoleBalance-v0", physics="c")
+    data = env.reset(jax.random.key(0)).data
+    with pytest.raises(cengine.CEngineError, match="body_masss"):
+        env.sim.step({"body_masss": jnp.ones(3)}, data, jnp.zeros(1))
+    with pytest.raises(cengine.CEngineError, match="body_mass.*shape"):
+        env.sim.step({"body_mass": jnp.ones(7)}, data, jnp.zeros(1))
+    with pytest.raises(TypeError, match="model_with"):
+        env.sim.step(jaxenvs.make("CartpoleBalance-v0", physics="mjx").sim.mx, data, jnp.zeros(1))
+
+
+@pytest.mark.slow  # two walker compiles (~30 s on 2 cores); the full tier runs it
+def test_walker_contact_parity():
+    """The walker on its feet: C and MJX within test_hexapod's MJX-vs-MuJoCo tolerances."""
+    from tests.test_hexapod import WALK_HEIGHT_ATOL, WALK_JOINT_ATOL, WALK_XY_ATOL
+
+    t = np.arange(60)[:, None] * 0.05
+    actions = jnp.asarray(0.2 * np.sin(np.pi * t + 0.7 * np.arange(18)[None, :]), jnp.float32)
+    qpos = {}
+    for physics in ("mjx", "c"):
+        env = jaxenvs.make("HexapodWalk-v0", physics=physics)
+
+        def roll(key, env=env):
+            def body(s, a):
+                s = env.step(s, a)
+                return s, s.data.qpos
+
+            return jax.lax.scan(body, env.reset(key), actions)[1]
+
+        qpos[physics] = np.asarray(jax.jit(roll)(jax.random.key(3)))
+    err = np.abs(qpos["mjx"] - qpos["c"])
+    assert err[:, 2].max() < WALK_HEIGHT_ATOL
+    assert err[:, :2].max() < WALK_XY_ATOL
+    assert err[:, 7:].max() < WALK_JOINT_ATOL
+
+
+def test_config_records_resolved_engine():
+    env = jaxenvs.make("CartPole-v0", physics="auto")
+    assert dataclasses.asdict(env.config)["physics"] in ("mjx", "c")
