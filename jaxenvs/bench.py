@@ -175,17 +175,23 @@ def prepare_ours(
     mode: str = "full",
     steps: int = 100,
     devices: int | None = None,
+    physics: str | None = None,
 ) -> Runner:
     """Compile and warm up ``steps`` batched steps of ``env_id`` at ``num_envs`` envs.
 
     ``devices`` > 1 runs the full step through :mod:`jaxenvs.sharding` with the batch
     split over that many devices (each timed call then also includes one reset).
+    ``physics`` picks the engine (default: the task's ``auto`` choice); the result's
+    ``physics`` field names the one used.
     """
-    benv = jaxenvs.make(env_id, num_envs=num_envs)
+    overrides: dict[str, Any] = {} if physics is None else {"physics": physics}
+    benv = jaxenvs.make(env_id, num_envs=num_envs, **overrides)
     assert isinstance(benv, BatchedEnv)
     if devices is not None and devices > 1:
-        return _prepare_sharded(env_id, benv, mode, steps, devices)
-    return prepare_batched(benv, env_id, mode, steps)
+        runner = _prepare_sharded(env_id, benv, mode, steps, devices)
+    else:
+        runner = prepare_batched(benv, env_id, mode, steps)
+    return runner
 
 
 def prepare_batched(
@@ -223,6 +229,7 @@ def prepare_batched(
         else (mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes)
         / 2**20,
         "devices": 1,
+        **_engine_info(benv.env),
     }
     holder = [state]
 
@@ -249,6 +256,7 @@ def _prepare_sharded(env_id: str, benv: BatchedEnv, mode: str, steps: int, devic
         "first_call_s": time.perf_counter() - t0,
         "devices": devices,
         "note": "each call includes one reset",
+        **_engine_info(benv.env),
     }
 
     def unit() -> int:
@@ -256,6 +264,19 @@ def _prepare_sharded(env_id: str, benv: BatchedEnv, mode: str, steps: int, devic
         return benv.num_envs * steps
 
     return Runner("jaxenvs", env_id, mode, benv.num_envs, unit, info)
+
+
+def _engine_info(env: Env) -> dict[str, Any]:
+    info: dict[str, Any] = {"physics": env.physics}
+    engine = getattr(env.sim, "engine", None)
+    if engine is not None:
+        info["threads"] = engine.threads
+    return info
+
+
+def is_ours(result: dict[str, Any]) -> bool:
+    """True for our own results (either engine), False for a peer's."""
+    return bool(result["name"] == "jaxenvs")
 
 
 # --------------------------------------------------------------------------- timing
@@ -512,33 +533,43 @@ def peer_runners(
 
 
 # --------------------------------------------------------------------------- reports
-def best_of(results: Sequence[dict[str, Any]], task: str, mode: str = "full") -> dict | None:
-    """Our fastest result for ``task`` in ``mode``."""
+def best_of(
+    results: Sequence[dict[str, Any]], task: str, mode: str = "full", physics: str | None = None
+) -> dict | None:
+    """Our fastest result for ``task`` in ``mode`` (under ``physics``, or either engine)."""
     ours = [
-        r for r in results if r["name"] == "jaxenvs" and r["task"] == task and r["variant"] == mode
+        r
+        for r in results
+        if is_ours(r)
+        and r["task"] == task
+        and r["variant"] == mode
+        and physics in (None, r.get("physics", "mjx"))
     ]
     return max(ours, key=lambda r: r["env_steps_per_s"]) if ours else None
 
 
 def ratios(results: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Ours (best batch, full step) / each peer of the same task."""
+    """Ours (best batch, full step, each engine measured) / each peer of the same task."""
     rows = []
     for peer in results:
-        if peer["name"] == "jaxenvs" or peer.get("skipped"):
+        if is_ours(peer) or peer.get("skipped"):
             continue
-        best = best_of(results, peer["task"])
-        if best is None:
-            continue
-        rows.append(
-            {
-                "task": peer["task"],
-                "our_envs": best["num_envs"],
-                "ours": best["env_steps_per_s"],
-                "peer": f"{peer['name']} {peer['variant']} x{peer['num_envs']}",
-                "peer_steps_per_s": peer["env_steps_per_s"],
-                "ratio": best["env_steps_per_s"] / peer["env_steps_per_s"],
-            }
-        )
+        engines = {r.get("physics", "mjx") for r in results if is_ours(r)}
+        for physics in sorted(engines):
+            best = best_of(results, peer["task"], physics=physics)
+            if best is None:
+                continue
+            rows.append(
+                {
+                    "task": peer["task"],
+                    "physics": physics,
+                    "our_envs": best["num_envs"],
+                    "ours": best["env_steps_per_s"],
+                    "peer": f"{peer['name']} {peer['variant']} x{peer['num_envs']}",
+                    "peer_steps_per_s": peer["env_steps_per_s"],
+                    "ratio": best["env_steps_per_s"] / peer["env_steps_per_s"],
+                }
+            )
     return rows
 
 
@@ -561,14 +592,16 @@ def plot(results: Sequence[dict[str, Any]], path: str) -> None:
     for ax, task in zip(axes[0], tasks, strict=True):
         rows = [r for r in results if r["task"] == task and not r.get("skipped")]
         for mode in MODES:
-            pts = sorted(
-                (r["num_envs"], r["env_steps_per_s"])
-                for r in rows
-                if r["name"] == "jaxenvs" and r["variant"] == mode
-            )
-            if pts:
-                ax.plot(*zip(*pts, strict=True), marker="o", label=f"jaxenvs {mode}")
-        for i, r in enumerate(r for r in rows if r["name"] != "jaxenvs"):
+            for physics in ("mjx", "c"):
+                pts = sorted(
+                    (r["num_envs"], r["env_steps_per_s"])
+                    for r in rows
+                    if is_ours(r) and r["variant"] == mode and r.get("physics", "mjx") == physics
+                )
+                if pts:
+                    label = f"jaxenvs {mode} ({physics})"
+                    ax.plot(*zip(*pts, strict=True), marker="o", label=label)
+        for i, r in enumerate(r for r in rows if not is_ours(r)):
             ax.axhline(
                 r["env_steps_per_s"],
                 ls="--",

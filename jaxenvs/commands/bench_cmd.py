@@ -43,7 +43,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--target-s", type=float, default=0.3, help="seconds per timed call")
     parser.add_argument("--peers", action="store_true", help="also time the peers")
     parser.add_argument("--peer-envs", type=_positive, default=256, help="EnvPool/rollout batch")
-    parser.add_argument("--threads", type=_positive, default=None, help="peer threads (all)")
+    parser.add_argument(
+        "--threads",
+        type=_positive,
+        default=None,
+        help="CPU cores to use (default: all usable): the C engine's and the peers' threads, "
+        "and on a CPU one XLA device per two cores for MJX",
+    )
+    parser.add_argument(
+        "--physics",
+        nargs="+",
+        choices=("auto", "mjx", "c"),
+        default=None,
+        help="engines to time side by side (default: mjx and c on a CPU, mjx elsewhere)",
+    )
     parser.add_argument("--json", default=None, metavar="FILE", help="write results as JSON")
     parser.add_argument("--plot", default=None, metavar="FILE", help="write a log-log plot")
     parser.add_argument(
@@ -92,15 +105,22 @@ def run(args: argparse.Namespace) -> int:
     print(f"# {info['host']} {info['device']} x{info['device_count']} jax {info['jax']}")
     runners: list[bench.Runner] = []
     skipped: list[dict[str, Any]] = []
+    import jax
+
+    from jaxenvs import machine
+
+    engines = args.physics or (["mjx", "c"] if jax.default_backend() == "cpu" else ["mjx"])
+    threads = args.threads or machine.cpu_threads()
     for task in tasks:
-        for b in args.batches:
-            for mode in args.modes:
-                log(f"compiling {task} x{b} {mode}")
-                devices = args.devices if mode == "full" else None
-                runners.append(bench.prepare_ours(task, b, mode, args.steps, devices))
+        for physics in dict.fromkeys(engines):
+            for b in args.batches:
+                for mode in args.modes:
+                    log(f"compiling {task} x{b} {mode} ({physics})")
+                    devices = args.devices if mode == "full" else None
+                    runners.append(bench.prepare_ours(task, b, mode, args.steps, devices, physics))
         if args.peers:
             log(f"preparing peers of {task}")
-            for p in bench.peer_runners(task, args.peer_envs, max(args.batches), args.threads):
+            for p in bench.peer_runners(task, args.peer_envs, max(args.batches), threads):
                 if isinstance(p, bench.Runner):
                     runners.append(p)
                 else:
@@ -115,10 +135,11 @@ def run(args: argparse.Namespace) -> int:
             rows.append([r["task"], r["name"], r["variant"], "-", "skipped: " + r["reason"], "-"])
             continue
         first = r.get("first_call_s")
+        who = f"jaxenvs ({r.get('physics', 'mjx')})" if bench.is_ours(r) else r["name"]
         rows.append(
             [
                 r["task"],
-                r["name"],
+                who,
                 r["variant"],
                 r["num_envs"],
                 f"{r['env_steps_per_s']:,.0f}",
@@ -134,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
             table.append(
                 [
                     q["task"],
-                    f"{q['ours']:,.0f} ({q['our_envs']})",
+                    f"{q['ours']:,.0f} ({q['physics']}, {q['our_envs']})",
                     q["peer"],
                     f"{q['peer_steps_per_s']:,.0f}",
                     f"{q['ratio']:.2f}x",

@@ -19,9 +19,10 @@ def run(args: argparse.Namespace) -> int:
     if args.ids:
         print("\n".join(ids))
         return 0
-    rows = [("id", "obs", "actions", "steps", "description")]
+    rows = [("id", "obs", "actions", "steps", "cpu physics", "description")]
     for env_id in ids:
-        env = jaxenvs.make(env_id)
+        env = jaxenvs.make(env_id, physics="mjx")
+        assert isinstance(env, jaxenvs.Env)
         actions = f"Discrete({env.action_size})" if env.discrete else f"Box({env.action_size})"
         rows.append(
             (
@@ -29,10 +30,15 @@ def run(args: argparse.Namespace) -> int:
                 str(env.observation_size),
                 actions,
                 str(env.episode_length),
+                type(env).cpu_physics,
                 spec(env_id).description,
             )
         )
-    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    widths = [max(len(r[i]) for r in rows) for i in range(5)]
     for r in rows:
-        print("  ".join(c.ljust(w) for c, w in zip(r[:4], widths, strict=True)) + "  " + r[4])
+        print("  ".join(c.ljust(w) for c, w in zip(r[:5], widths, strict=True)) + "  " + r[5])
+    print(
+        "\ncpu physics: the engine physics='auto' (the default) steps on a CPU; "
+        "MJX on a GPU or TPU (--physics to choose)"
+    )
     return 0
