@@ -17,6 +17,9 @@ mocap poses. Every other floating-point field of the state is NaN under this eng
 a task that reads one (a site position, a contact force) fails its engine-parity test
 loudly instead of reading a stale value (``tests/test_cengine.py`` walks every task).
 
+An env whose state is non-finite, or that MuJoCo resets because its state turned bad,
+comes back NaN, so the task's divergence check terminates it as under MJX.
+
 The solver warm start (``qacc_warmstart``) is zero at the start of each control step and
 carried through its substeps (MuJoCo's rollout takes it in but does not hand it back).
 
@@ -227,6 +230,11 @@ class CEngine:
             )
         force = sensors[:, -1, self.force_offset : self.force_offset + m.nu]
         result = np.concatenate([state[:, -1, :nphys], force], axis=1).astype(packed.dtype)
+        # MuJoCo resets an env whose state turned bad (non-finite or past mjMAXVAL) and
+        # carries on, which would hide the divergence; such an env's time went back, and
+        # its result becomes NaN so that the task's divergence check terminates it
+        bad = ~np.isfinite(packed[:, :nphys]).all(axis=1) | (state[:, -1, 0] <= packed[:, 0])
+        result[bad] = np.nan
         return result.reshape(lead + result.shape[1:])
 
     def _models(

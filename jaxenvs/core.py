@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import warnings
+from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
 import gymnasium
@@ -41,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from jax.sharding import Mesh, PartitionSpec
 from mujoco import mjx
 
 from jaxenvs.config import require
@@ -362,6 +365,55 @@ class Env(abc.ABC, Generic[ConfigT]):
         return f"{type(self).__name__}({self.config})"
 
 
+#: name of the mesh axis an env batch is split over (see :mod:`jaxenvs.sharding`).
+ENV_AXIS = "envs"
+
+
+def divisible_devices(num_envs: int, available: int) -> int:
+    """The most devices, at most ``available``, that ``num_envs`` splits over evenly."""
+    return max(d for d in range(1, min(available, num_envs) + 1) if num_envs % d == 0)
+
+
+def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
+    """How many local devices a batch of ``num_envs`` envs is spread over.
+
+    ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
+    host devices, see :mod:`jaxenvs.machine`, or GPUs), or as many of them as
+    ``num_envs`` divides over evenly, with a warning when that is fewer; under the C
+    engine one (its own threads spread the batch). An explicit count must divide
+    ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.
+    """
+    available = jax.local_device_count()
+    if devices is None:
+        if physics == "c" or available == 1:
+            return 1
+        n = divisible_devices(num_envs, available)
+        if n < available and num_envs >= available:
+            lower = num_envs - num_envs % available
+            warnings.warn(
+                f"num_envs={num_envs} does not divide over the {available} local devices: "
+                f"spreading over {n} (a multiple of {available}, e.g. {lower} or "
+                f"{lower + available}, uses them all)",
+                stacklevel=3,
+            )
+        return n
+    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
+        raise ValueError(f"devices must be a positive integer, got {devices!r}")
+    if devices > available:
+        raise ValueError(
+            f"asked for {devices} devices but only {available} are available "
+            f"({jax.default_backend()}); on a CPU call jaxenvs.machine.use_cores first, or "
+            f"set XLA_FLAGS=--xla_force_host_platform_device_count={devices} before JAX starts"
+        )
+    if num_envs % devices:
+        lower = max(devices, num_envs - num_envs % devices)
+        raise ValueError(
+            f"num_envs={num_envs} does not divide evenly over {devices} devices: use a "
+            f"multiple of {devices} (e.g. {lower} or {lower + devices}), or fewer devices"
+        )
+    return devices
+
+
 class BatchedEnv:
     """``num_envs`` copies of an :class:`Env` stepped by one vmapped function.
 
@@ -371,14 +423,57 @@ class BatchedEnv:
     ``info["final_length"]``, and ``reward``/``terminated``/``truncated`` still describe
     the transition that ended it. With ``randomize=True`` each env draws its own params
     from ``env.sample_params`` at every reset (domain randomisation).
+
+    **Devices.** The batch is spread over the local devices (:func:`batch_devices`;
+    ``devices=1`` keeps it on one): ``reset`` and ``step`` run as one ``shard_map`` over a
+    1-D mesh with axis :data:`ENV_AXIS`, each device stepping its slice of envs, and
+    each device decides its own auto-reset (no cross-device ``any(done)`` per step). Every
+    env's arithmetic is the same as on one device, so trajectories are bit-identical.
     """
 
-    def __init__(self, env: Env, num_envs: int, randomize: bool = False) -> None:
+    def __init__(
+        self, env: Env, num_envs: int, randomize: bool = False, devices: int | None = None
+    ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.env = env
         self.num_envs = int(num_envs)
         self.randomize = bool(randomize)
+        n = batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
+        #: the mesh the batch is spread over; ``None`` on one device
+        self.mesh = None if n == 1 else Mesh(np.array(jax.local_devices()[:n]), (ENV_AXIS,))
+
+    @property
+    def devices(self) -> int:
+        """The number of devices the batch is spread over."""
+        return 1 if self.mesh is None else self.mesh.size
+
+    def on_one_device(self) -> BatchedEnv:
+        """The same batch unspread (for callers that place it themselves, e.g. with
+        :func:`jaxenvs.sharding.shard_jit`)."""
+        if self.mesh is None:
+            return self
+        return BatchedEnv(self.env, self.num_envs, self.randomize, devices=1)
+
+    def _spread(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(*args)`` with every array argument's leading axis split over the mesh
+        (``None`` params replicated) and the result split the same way."""
+        if self.mesh is None:
+            return fn(*args)
+
+        def spec(tree: Any, split: bool) -> Any:
+            return jax.tree.map(
+                lambda _: PartitionSpec(ENV_AXIS) if split else PartitionSpec(), tree
+            )
+
+        out = jax.eval_shape(fn, *args)
+        in_specs = tuple(spec(a, i < 2) for i, a in enumerate(args))
+        mapped = jax.shard_map(
+            fn, mesh=self.mesh, in_specs=in_specs, out_specs=spec(out, True), check_vma=False
+        )
+        # jit: inlined when the caller is traced; called eagerly, the task's constants
+        # (committed to one device) must become part of one program over the mesh
+        return jax.jit(mapped)(*args)
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")
@@ -404,7 +499,9 @@ class BatchedEnv:
     def reset(self, key: jax.Array, params: Params = None) -> State:
         """Reset all envs; returns a State with a leading ``num_envs`` axis."""
         keys = jax.random.split(key, self.num_envs)
-        return self._reset_batch(keys, params)
+        if self.mesh is None:
+            return self._reset_batch(keys, params)
+        return self._spread(lambda k, _, p: self._reset_batch(k, p), keys, (), params)
 
     def step(self, state: State, action: jax.Array, params: Params = None) -> State:
         """Step every env, then reset the finished ones (fresh random starts)."""
@@ -415,6 +512,9 @@ class BatchedEnv:
                 f"batched {type(self.env).__name__}: expected actions of shape {expected}, "
                 f"got {action.shape}"
             )
+        return self._spread(self._step_batch, state, action, params)
+
+    def _step_batch(self, state: State, action: jax.Array, params: Params) -> State:
         if state.params is not None:
             nxt = jax.vmap(self.env.step)(state, action, state.params)
         else:
@@ -450,4 +550,4 @@ class BatchedEnv:
         return jax.lax.cond(jnp.any(done), reset_done, lambda s: s, nxt)
 
     def __repr__(self) -> str:
-        return f"BatchedEnv({self.env!r}, num_envs={self.num_envs})"
+        return f"BatchedEnv({self.env!r}, num_envs={self.num_envs}, devices={self.devices})"

@@ -155,6 +155,7 @@ def make(
     env_id: str,
     num_envs: int | None = None,
     randomize: bool = False,
+    devices: int | None = None,
     **overrides: Any,
 ) -> Env | BatchedEnv:
     """Build the env registered as ``env_id``.
@@ -163,18 +164,22 @@ def make(
       env_id: a registered id (see :func:`list_envs`).
       num_envs: if given, a :class:`BatchedEnv` of that many auto-resetting envs.
       randomize: with ``num_envs``, draw per-env params at every reset.
-      **overrides: any field of the task's config (``episode_length=500``, ...); an
-        unknown key raises :class:`ConfigError` listing the valid ones.
+      devices: with ``num_envs``, how many local devices the batch is spread over
+        (default: all that ``num_envs`` divides over; ``1``: none; see
+        :func:`jaxenvs.core.batch_devices`).
+      **overrides: any field of the task's config (``episode_length=500``,
+        ``physics="c"``, ...); an unknown key raises :class:`ConfigError` listing the
+        valid ones.
     """
     config = make_config(env_id, overrides)
     env = spec(env_id).factory(config)
     if num_envs is None:
-        if randomize:
-            raise ConfigError("randomize=True needs num_envs (a batched env)")
+        if randomize or devices is not None:
+            raise ConfigError("randomize and devices need num_envs (a batched env)")
         return env
     if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
         raise ConfigError(f"num_envs must be a positive integer, got {num_envs!r}")
-    return BatchedEnv(env, num_envs, randomize=randomize)
+    return BatchedEnv(env, num_envs, randomize=randomize, devices=devices)
 
 
 def _builtin() -> None:

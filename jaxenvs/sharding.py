@@ -53,14 +53,15 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxenvs import core
 from jaxenvs.agents.base import Trainer
 from jaxenvs.core import BatchedEnv, State
 from jaxenvs.testing import random_actions
 
 PyTree = Any
 
-#: name of the mesh axis the env batch is split over.
-ENV_AXIS = "envs"
+#: name of the mesh axis the env batch is split over (:data:`jaxenvs.core.ENV_AXIS`).
+ENV_AXIS = core.ENV_AXIS
 
 #: the environment variables :func:`maybe_initialize_distributed` reads.
 DISTRIBUTED_ENV_VARS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
@@ -292,6 +293,7 @@ def sharded_reset(benv: BatchedEnv, mesh: Mesh) -> Callable[[jax.Array], State]:
     Raises ``ValueError`` if ``benv.num_envs`` does not divide over the mesh.
     """
     validate_batch(benv.num_envs, mesh)
+    benv = benv.on_one_device()  # placed by this function's own shardings
     key = jax.random.key(0)
     return shard_jit(benv.reset, mesh, (jax.ShapeDtypeStruct(key.shape, key.dtype),))
 
@@ -310,6 +312,7 @@ def make_sharded_rollout(
     the mesh along the env axis.
     """
     validate_batch(benv.num_envs, mesh)
+    benv = benv.on_one_device()  # placed by this function's own shardings
     if policy is None:
 
         def policy(state: State, key: jax.Array) -> jax.Array:
@@ -350,6 +353,7 @@ def make_sharded_steps(
     resident, split over the devices, with no reset between calls.
     """
     validate_batch(benv.num_envs, mesh)
+    benv = benv.on_one_device()  # placed by this function's own shardings
     if policy is None:
 
         def policy(state: State, key: jax.Array) -> jax.Array:

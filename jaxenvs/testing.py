@@ -76,7 +76,7 @@ class TaskChecker:
         self.rollout_steps = rollout_steps
         self.reset, self.reset_count = _counting_jit(env.reset)
         self.step, self.step_count = _counting_jit(env.step)
-        self.benv = BatchedEnv(env, num_envs)
+        self.benv = BatchedEnv(env, num_envs, devices=1)
         self._rollout = jax.jit(self._rollout_fn)
 
     def _rollout_fn(self, key: jax.Array) -> tuple[State, State]:

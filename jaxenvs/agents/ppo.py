@@ -263,7 +263,8 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
     """The PPO :class:`Trainer` of ``env`` (a single env; a batched one is unwrapped)."""
     config.validate()
     single: Env = env.env if isinstance(env, BatchedEnv) else env
-    benv = BatchedEnv(single, config.num_envs, randomize=config.randomize)
+    # one device here: the runner spreads the whole training state (jaxenvs.sharding)
+    benv = BatchedEnv(single, config.num_envs, randomize=config.randomize, devices=1)
     net = make_network(single, config)
     head = CATEGORICAL if single.discrete else GAUSSIAN
 

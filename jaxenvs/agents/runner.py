@@ -45,7 +45,7 @@ from jaxenvs import compile_cache, files, machine, program_cache, registry, shar
 from jaxenvs.agents import checkpoint
 from jaxenvs.agents.base import CHUNK_METRICS, Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
-from jaxenvs.core import Env
+from jaxenvs.core import Env, batch_devices
 
 PyTree = Any
 
@@ -378,8 +378,10 @@ def _programs(resolved: ResolvedConfig, devices: int | None = None) -> _Programs
     compiling.
     """
     env, trainer = build(resolved)
-    if devices is None and env.physics == "c":
-        devices = 1  # the C engine spreads a batch over its own threads
+    if devices is None and jax.process_count() == 1:
+        # all local devices that num_envs divides over; one under the C engine, whose
+        # own threads spread the batch
+        devices = batch_devices(resolved.agent.num_envs, None, env.physics)
     mesh = sharding.make_mesh(devices)
     init_fn: Any = None
     chunk_fn: Any = None

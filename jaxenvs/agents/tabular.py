@@ -304,7 +304,8 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
     sarsa = isinstance(config, SarsaConfig)
     disc = make_discretiser(low, high, config.number_splits)
     num_actions = env.action_size
-    benv = BatchedEnv(env, config.num_envs)
+    # one device here: the runner spreads the whole training state (jaxenvs.sharding)
+    benv = BatchedEnv(env, config.num_envs, devices=1)
     n = config.num_envs
     gamma, alpha = config.gamma, config.alpha
     limit = config.episodes_per_env

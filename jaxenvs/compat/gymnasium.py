@@ -179,7 +179,11 @@ class _Compiled:
 
 
 def _build(
-    env_id: str, overrides: dict[str, Any], num_envs: int | None, randomize: bool
+    env_id: str,
+    overrides: dict[str, Any],
+    num_envs: int | None,
+    randomize: bool,
+    devices: int | None = None,
 ) -> _Compiled:
     env = registry.make(env_id, **overrides)
     assert isinstance(env, Env)
@@ -187,7 +191,7 @@ def _build(
     task: Env | BatchedEnv = env
     benv = None
     if num_envs is not None:
-        task = benv = BatchedEnv(env, num_envs, randomize=randomize)
+        task = benv = BatchedEnv(env, num_envs, randomize=randomize, devices=devices)
     seed0 = jax.ShapeDtypeStruct((), jnp.uint32)
     flat = _FlatState(
         jax.eval_shape(lambda s: task.reset(jax.random.key(s)), seed0),
@@ -230,17 +234,18 @@ def compiled(
     overrides: dict[str, Any] | None = None,
     num_envs: int | None = None,
     randomize: bool = False,
+    devices: int | None = None,
 ) -> _Compiled:
     """The shared jitted functions for ``env_id`` with ``overrides`` (built once)."""
     overrides = dict(overrides or {})
     config = registry.make_config(env_id, overrides, source=f"{gym_id(env_id)} kwargs")
     try:
-        cache_key: Any = (registry.spec(env_id).factory, config, num_envs, randomize)
+        cache_key: Any = (registry.spec(env_id).factory, config, num_envs, randomize, devices)
         hash(cache_key)
     except TypeError:  # a config with unhashable fields: no sharing
-        return _build(env_id, overrides, num_envs, randomize)
+        return _build(env_id, overrides, num_envs, randomize, devices)
     if cache_key not in _CACHE:
-        _CACHE[cache_key] = _build(env_id, overrides, num_envs, randomize)
+        _CACHE[cache_key] = _build(env_id, overrides, num_envs, randomize, devices)
     return _CACHE[cache_key]
 
 
@@ -450,6 +455,8 @@ class JaxVectorEnv(VectorEnv):
       max_episode_steps: the episode length (``make_vec`` passes the registered one);
         a different value overrides the task's ``episode_length``.
       randomize: draw per-env params at every reset (domain randomisation).
+      devices: local devices the batch is spread over (default: all that ``num_envs``
+        divides over; ``1``: none), as :func:`jaxenvs.make`.
       render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns one frame per env).
       width, height, camera: frame size and camera.
       **overrides: fields of the task's config.
@@ -471,6 +478,7 @@ class JaxVectorEnv(VectorEnv):
         width: int = 640,
         height: int = 480,
         camera: str | int | None = None,
+        devices: int | None = None,
         **overrides: Any,
     ) -> None:
         _check_render_mode(render_mode)
@@ -480,7 +488,7 @@ class JaxVectorEnv(VectorEnv):
             default = registry.make_config(env_id, overrides).episode_length
             if int(max_episode_steps) != default:
                 overrides["episode_length"] = int(max_episode_steps)
-        self._fns = compiled(env_id, overrides, num_envs, bool(randomize))
+        self._fns = compiled(env_id, overrides, num_envs, bool(randomize), devices)
         self.env_id = env_id
         self.jax_env: Env = self._fns.env
         self.num_envs = num_envs

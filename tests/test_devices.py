@@ -1,0 +1,194 @@
+"""Batches spread over all local devices by default (BatchedEnv, the Gymnasium vector env),
+and the one knob for how much of the machine to use (``jaxenvs.machine``).
+
+The CPU's device count is fixed when JAX starts, so the multi-device checks run in a
+subprocess with 4 forced host devices; it writes its results as JSON and arrays as .npz,
+compared here. Rollouts must be bit-identical to one device (each env's arithmetic is the
+same; only where it runs changes).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxenvs import machine
+from jaxenvs.core import divisible_devices
+
+_SCRIPT = textwrap.dedent(
+    """
+    import json, sys, warnings
+    import jax, jax.numpy as jnp, numpy as np
+    import jaxenvs
+    from jaxenvs.testing import random_actions
+
+    out = sys.argv[1]
+    res, arrays = {"devices": jax.local_device_count()}, {}
+
+    def rollout(benv, steps=40):
+        def run(key):
+            def body(s, k):
+                s = benv.step(s, random_actions(benv.env, k, (benv.num_envs,)))
+                return s, (s.obs, s.reward, s.done)
+            return jax.lax.scan(body, benv.reset(key), jax.random.split(key, steps))
+        state, traj = jax.jit(run)(jax.random.key(7))
+        return state, [np.asarray(x) for x in traj]
+
+    for n in (None, 2, 1):
+        benv = jaxenvs.make("CartPole-v0", num_envs=8, devices=n, physics="mjx")
+        state, traj = rollout(benv)
+        res[f"devices_{n}"] = benv.devices
+        res[f"obs_shards_{n}"] = len(state.obs.sharding.device_set)
+        for name, x in zip(("obs", "reward", "done"), traj):
+            arrays[f"{name}_{n}"] = x
+    # the per-device auto-reset: no cross-device reduction in the spread step
+    benv = jaxenvs.make("CartPole-v0", num_envs=8, physics="mjx")
+    s = benv.reset(jax.random.key(0))
+    hlo = jax.jit(benv.step).lower(s, jnp.zeros(8, jnp.int32)).as_text()
+    res["step_all_reduce"] = "all-reduce" in hlo or "all_reduce" in hlo
+    # domain randomisation spread too
+    benv = jaxenvs.make("Reacher-v0", num_envs=8, randomize=True, physics="mjx")
+    res["randomized_devices"] = benv.devices
+    arrays["dr_4"] = rollout(benv, 10)[1][0]
+    arrays["dr_1"] = rollout(jaxenvs.make("Reacher-v0", num_envs=8, randomize=True,
+                                           physics="mjx", devices=1), 10)[1][0]
+    # uneven batches: the default spreads over a divisor; an explicit count must divide
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        res["uneven_devices"] = jaxenvs.make("CartPole-v0", num_envs=6, physics="mjx").devices
+    res["uneven_warning"] = " ".join(str(w.message) for w in caught)
+    try:
+        jaxenvs.make("CartPole-v0", num_envs=6, devices=4)
+    except ValueError as err:
+        res["uneven_error"] = str(err)
+    # the C engine keeps one device (its threads spread the batch)
+    res["c_devices"] = jaxenvs.make("CartPole-v0", num_envs=8, physics="c").devices
+    # the Gymnasium vector env is spread as well, with the same numbers
+    import gymnasium as gym
+    obs = []
+    for n in (None, 1):
+        envs = gym.make_vec("jaxenvs/CartPole-v0", num_envs=8, physics="mjx",
+                            vectorization_mode="vector_entry_point", devices=n)
+        o, _ = envs.reset(seed=3)
+        for _ in range(20):
+            o, r, te, tr, info = envs.step(np.ones(8, np.int64))
+        obs.append(o)
+        envs.close()
+    res["vector_equal"] = bool(np.array_equal(obs[0], obs[1]))
+    np.savez(out + ".npz", **arrays)
+    with open(out + ".json", "w") as f:
+        json.dump(res, f)
+    """
+)
+
+
+@pytest.fixture(scope="module")
+def four_devices(tmp_path_factory):
+    out = tmp_path_factory.mktemp("devices") / "res"
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
+    env.pop("JAX_NUM_CPU_DEVICES", None)
+    proc = subprocess.run(
+        [sys.executable, "-c", _SCRIPT, str(out)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(Path(f"{out}.json").read_text()), dict(np.load(f"{out}.npz"))
+
+
+def test_batch_spreads_over_all_devices_by_default(four_devices):
+    res, _ = four_devices
+    assert res["devices"] == 4
+    assert (res["devices_None"], res["devices_2"], res["devices_1"]) == (4, 2, 1)
+    assert (res["obs_shards_None"], res["obs_shards_2"], res["obs_shards_1"]) == (4, 2, 1)
+    assert res["randomized_devices"] == 4
+    assert res["c_devices"] == 1
+
+
+def test_spread_rollouts_are_bit_identical_to_one_device(four_devices):
+    _, arrays = four_devices
+    assert arrays["done_1"].any()  # episodes ended: the auto-reset ran on every layout
+    for name in ("obs", "reward", "done"):
+        np.testing.assert_array_equal(arrays[f"{name}_None"], arrays[f"{name}_1"])
+        np.testing.assert_array_equal(arrays[f"{name}_2"], arrays[f"{name}_1"])
+    np.testing.assert_array_equal(arrays["dr_4"], arrays["dr_1"])
+
+
+def test_each_device_decides_its_own_auto_reset(four_devices):
+    res, _ = four_devices
+    assert res["step_all_reduce"] is False
+
+
+def test_uneven_batches(four_devices):
+    res, _ = four_devices
+    assert res["uneven_devices"] == 3
+    assert "num_envs=6" in res["uneven_warning"] and "4 local devices" in res["uneven_warning"]
+    assert "num_envs=6" in res["uneven_error"] and "4 or 8" in res["uneven_error"]
+
+
+def test_vector_env_spread_matches_one_device(four_devices):
+    res, _ = four_devices
+    assert res["vector_equal"] is True
+
+
+def test_divisible_devices():
+    assert divisible_devices(4096, 16) == 16
+    assert divisible_devices(1001, 16) == 13
+    assert divisible_devices(7, 16) == 7
+    assert divisible_devices(1, 8) == 1
+
+
+_KNOB = textwrap.dedent(
+    """
+    import sys, warnings
+    from jaxenvs import machine
+    import jax
+    if sys.argv[1] == "early":
+        machine.use_cores(8)
+        print(jax.local_device_count(), machine.cpu_threads())
+    else:
+        jax.devices()
+        try:
+            machine.use_cores(8)
+        except RuntimeError as err:
+            print("raised:", err)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            machine.use_cores(8, strict=False)
+        print("warned:", caught[0].message, machine.cpu_threads())
+    """
+)
+
+
+def _knob(mode: str) -> str:
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
+    proc = subprocess.run(
+        [sys.executable, "-c", _KNOB, mode], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout
+
+
+def test_use_cores_sets_devices_and_threads_before_jax_starts():
+    assert _knob("early").split() == ["4", "8"]  # one XLA CPU device per two cores
+
+
+def test_use_cores_too_late_says_how_to_fix():
+    out = _knob("late")
+    assert "raised: jaxenvs.machine.use_cores came after JAX started" in out
+    assert "xla_force_host_platform_device_count=4" in out
+    assert "warned:" in out and out.strip().endswith("8")  # the threads still change
+
+
+def test_usable_cores_and_device_rule():
+    assert machine.usable_cores() == len(os.sched_getaffinity(0))
+    assert [machine.host_devices_for(n) for n in (1, 2, 3, 16)] == [1, 1, 1, 8]
