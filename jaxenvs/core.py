@@ -181,7 +181,7 @@ class Env(abc.ABC, Generic[ConfigT]):
         self.config = config
         #: the engine stepping this env: ``"mjx"`` or ``"c"``
         self.physics = physics
-        self.sim = sim.with_physics(physics)
+        self.sim = sim if physics == "mjx" else sim.with_physics(physics)
 
     # ----------------------------------------------------------------- description
     @property

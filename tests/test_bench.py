@@ -38,12 +38,16 @@ def bench_json(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def test_bench_writes_valid_json(bench_json: dict) -> None:
-    (res,) = bench_json["results"]
-    assert res["name"] == "jaxenvs" and res["task"] == "CartPole-v0"
-    assert res["num_envs"] == 2 and res["variant"] == "full"
-    assert res["env_steps_per_s"] > 0
-    assert res["min_env_steps_per_s"] <= res["env_steps_per_s"] <= res["max_env_steps_per_s"]
-    assert res["first_call_s"] >= res["compile_s"] > 0
+    # on a CPU both engines are timed, in the same rounds
+    results = {r["physics"]: r for r in bench_json["results"]}
+    assert sorted(results) == ["c", "mjx"] and len(bench_json["results"]) == 2
+    for res in results.values():
+        assert res["name"] == "jaxenvs" and res["task"] == "CartPole-v0"
+        assert res["num_envs"] == 2 and res["variant"] == "full"
+        assert res["env_steps_per_s"] > 0
+        assert res["min_env_steps_per_s"] <= res["env_steps_per_s"] <= res["max_env_steps_per_s"]
+        assert res["first_call_s"] >= res["compile_s"] > 0
+    assert results["c"]["threads"] >= 1
     assert bench_json["machine"]["backend"] == "cpu"
     assert bench_json["ratios"] == []
 
@@ -85,6 +89,10 @@ def test_ratios_compare_best_batch_to_each_peer() -> None:
     ]
     (row,) = bench.ratios(results)
     assert row["our_envs"] == 8 and row["ratio"] == pytest.approx(2.0)
+    assert row["physics"] == "mjx"  # results without an engine are MJX's
+    c_result = {**results[1], "physics": "c", "env_steps_per_s": 60}
+    rows = {r["physics"]: r for r in bench.ratios([*results, c_result])}
+    assert rows["c"]["ratio"] == pytest.approx(3.0) and rows["mjx"]["ratio"] == pytest.approx(2.0)
 
 
 def test_bad_devices_and_mode_are_user_errors(capsys: pytest.CaptureFixture[str]) -> None:
