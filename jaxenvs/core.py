@@ -530,10 +530,11 @@ class BatchedEnv:
 
             merged = jax.tree.map(
                 pick,
-                (fresh.data, fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
-                (nxt.data, nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
+                (fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
+                (nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
             )
-            data, obs, extras, time, key, new_params = merged
+            obs, extras, time, key, new_params = merged
+            data = self.env.sim.select_data(pick, fresh.data, nxt.data)
             info = dict(nxt.info)
             info["episode_return"] = jnp.where(done, 0.0, nxt.info["episode_return"])
             info["episode_length"] = jnp.where(done, 0, nxt.info["episode_length"])

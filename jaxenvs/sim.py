@@ -95,6 +95,13 @@ class Sim:
             return self.mx
         return self.mx.replace(**fields)
 
+    def select_data(
+        self, pick: Callable[[jax.Array, jax.Array], jax.Array], new: mjx.Data, old: mjx.Data
+    ) -> mjx.Data:
+        """``pick(new_leaf, old_leaf)`` over the fields of two states that a step carries
+        (all of them under MJX); used by the auto-reset to merge fresh starts in."""
+        return jax.tree.map(pick, new, old)
+
     def default_fields(self, names: tuple[str, ...]) -> dict[str, jax.Array]:
         """Current values of model fields, for building a task's default params."""
         return {name: jnp.asarray(getattr(self.mx, name)) for name in names}
@@ -172,6 +179,16 @@ class CSim(Sim):
     def model_with(self, fields: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
         """The params fields themselves; the C engine applies them on the host."""
         return dict(fields)
+
+    def select_data(
+        self, pick: Callable[[jax.Array, jax.Array], jax.Array], new: mjx.Data, old: mjx.Data
+    ) -> mjx.Data:
+        """Only the fields the C engine reads or writes: the others are NaN in every state
+        (the walker's contact and constraint arrays were most of its auto-reset's work)."""
+        from jaxenvs import cengine
+
+        live = set(cengine.READ) | set(cengine.WRITTEN) | set(cengine.KEPT)
+        return old.replace(**{f: pick(getattr(new, f), getattr(old, f)) for f in live})
 
     def step(self, model: Any, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
         return self.engine.step(_fields(model), data, ctrl, self.substeps)
