@@ -68,8 +68,11 @@ _SCRIPT = textwrap.dedent(
         jaxenvs.make("CartPole-v0", num_envs=6, devices=4)
     except ValueError as err:
         res["uneven_error"] = str(err)
-    # the C engine keeps one device (its threads spread the batch)
+    # the C engine keeps one device (its threads spread the batch), and spread on request
+    # it still gives the same numbers
     res["c_devices"] = jaxenvs.make("CartPole-v0", num_envs=8, physics="c").devices
+    arrays["c_2"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=2))[1][0]
+    arrays["c_1"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c"))[1][0]
     # the Gymnasium vector env is spread as well, with the same numbers
     import gymnasium as gym
     obs = []
@@ -121,6 +124,7 @@ def test_spread_rollouts_are_bit_identical_to_one_device(four_devices):
         np.testing.assert_array_equal(arrays[f"{name}_None"], arrays[f"{name}_1"])
         np.testing.assert_array_equal(arrays[f"{name}_2"], arrays[f"{name}_1"])
     np.testing.assert_array_equal(arrays["dr_4"], arrays["dr_1"])
+    np.testing.assert_array_equal(arrays["c_2"], arrays["c_1"])
 
 
 def test_each_device_decides_its_own_auto_reset(four_devices):
