@@ -18,5 +18,5 @@ for args in "--physics c" "--physics mjx" "--physics mjx --devices 1"; do
   start=$(date +%s.%N)
   timeout 150 python3 -m jaxenvs train CartPole-v0 --algo ppo --no-video --no-compile-cache \
     --quiet $args --out "/tmp/cp_$name" 2>&1 | tee "$out/ppo_cartpole_$name.txt"
-  echo "whole command $(echo "$(date +%s.%N) - $start" | bc) s ($args)" | tee -a "$out/ppo_cartpole_$name.txt"
+  echo "whole command $(python3 -c "import time; print(round(time.time() - $start, 1))") s ($args)" | tee -a "$out/ppo_cartpole_$name.txt"
 done
