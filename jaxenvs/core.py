@@ -182,6 +182,10 @@ class Env(abc.ABC, Generic[ConfigT]):
         #: the engine stepping this env: ``"mjx"`` or ``"c"``
         self.physics = physics
         self.sim = sim if physics == "mjx" else sim.with_physics(physics)
+        if physics == "c":
+            # unrolling lets XLA fuse across MJX steps; a C step is a host call that
+            # cannot fuse, so unrolled copies would only add compile time
+            self.scan_unroll = 1
 
     # ----------------------------------------------------------------- description
     @property
