@@ -43,7 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
 from jaxenvs.config import require
@@ -429,10 +429,10 @@ class BatchedEnv:
     from ``env.sample_params`` at every reset (domain randomisation).
 
     **Devices.** The batch is spread over the local devices (:func:`batch_devices`;
-    ``devices=1`` keeps it on one): ``reset`` and ``step`` run as one ``shard_map`` over a
-    1-D mesh with axis :data:`ENV_AXIS`, each device stepping its slice of envs, and
-    each device decides its own auto-reset (no cross-device ``any(done)`` per step). Every
-    env's arithmetic is the same as on one device, so trajectories are bit-identical.
+    ``devices=1`` keeps it on one): ``reset`` and ``step`` keep every state leaf's env axis
+    split over a 1-D mesh with axis :data:`ENV_AXIS`, so each device steps its slice of
+    envs. Every env's arithmetic is the same as on one device, so trajectories are
+    bit-identical.
     """
 
     def __init__(
@@ -460,24 +460,27 @@ class BatchedEnv:
         return BatchedEnv(self.env, self.num_envs, self.randomize, devices=1)
 
     def _spread(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(*args)`` with every array argument's leading axis split over the mesh
-        (``None`` params replicated) and the result split the same way."""
+        """``fn(*args)`` with the first two arguments' and the result's leading (env) axis
+        split over the mesh; the compiler partitions the program (and adds the one
+        cross-device reduction, the auto-reset's ``any(done)``).
+
+        Not a ``shard_map`` (which would let each device decide its own auto-reset): XLA's
+        CPU compiler in jax 0.11.2 crashes on this program as a ``shard_map`` over 8 host
+        devices (benchmarks/NOTES.md), while the constrained program compiles everywhere.
+        """
         if self.mesh is None:
             return fn(*args)
+        split = NamedSharding(self.mesh, PartitionSpec(ENV_AXIS))
 
-        def spec(tree: Any, split: bool) -> Any:
-            return jax.tree.map(
-                lambda _: PartitionSpec(ENV_AXIS) if split else PartitionSpec(), tree
-            )
+        def place(tree: Any) -> Any:
+            return jax.lax.with_sharding_constraint(tree, jax.tree.map(lambda _: split, tree))
 
-        out = jax.eval_shape(fn, *args)
-        in_specs = tuple(spec(a, i < 2) for i, a in enumerate(args))
-        mapped = jax.shard_map(
-            fn, mesh=self.mesh, in_specs=in_specs, out_specs=spec(out, True), check_vma=False
-        )
+        def run(first: Any, second: Any, rest: Any) -> Any:
+            return place(fn(place(first), place(second), rest))
+
         # jit: inlined when the caller is traced; called eagerly, the task's constants
-        # (committed to one device) must become part of one program over the mesh
-        return jax.jit(mapped)(*args)
+        # (committed to one device) become part of one program over the mesh
+        return jax.jit(run)(*args)
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")
