@@ -228,7 +228,7 @@ def prepare_batched(
         if mem is None
         else (mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes)
         / 2**20,
-        "devices": 1,
+        "devices": benv.devices,
         **_engine_info(benv.env),
     }
     holder = [state]
