@@ -16,6 +16,7 @@ from jaxenvs.tasks.hexapod import (
     JOINT_RANGE,
     HexapodOneLeg,
     HexapodWalk,
+    WalkConfig,
     leg_tip,
     quat_to_mat,
 )
@@ -101,6 +102,26 @@ def test_walker_observation_and_reward_terms(walk):
     d0 = np.linalg.norm(target - np.asarray(state.data.qpos[:2]))
     d1 = float(state2.info["distance"])
     assert abs(float(state2.info["progress"]) - (d0 - d1) / 0.05) < 1e-3
+
+
+def test_walker_tilt_and_spin_penalties(walk):
+    """The robustness terms: ``-tilt_weight * (1 - up_z) - spin_weight * (w_x^2 + w_y^2)``
+    on top of the default reward, for a body tilted 0.4 rad that rolls, pitches and yaws."""
+    env, reset, step = walk
+    state = reset(jax.random.key(4))
+    prev = step(state, jnp.zeros(18)).data
+    tilt = jnp.array([jnp.cos(0.2), jnp.sin(0.2), 0.0, 0.0])  # 0.4 rad about x
+    qvel = prev.qvel.at[3:6].set(jnp.array([1.5, -0.5, 3.0]))
+    nxt = prev.replace(qpos=prev.qpos.at[3:7].set(tilt), qvel=qvel)
+    shaped = HexapodWalk(WalkConfig(tilt_weight=2.0, spin_weight=0.1))
+    params, action = env.default_params, jnp.zeros(18)
+    base, fallen, _ = env._reward(state.data, nxt, action, None, params)
+    reward, shaped_fallen, _ = shaped._reward(state.data, nxt, action, None, params)
+    up_z = quat_to_mat(nxt.qpos[3:7])[2, 2]
+    expected = base - 2.0 * (1.0 - up_z) - 0.1 * jnp.sum(nxt.qvel[3:5] ** 2)
+    assert float(1.0 - up_z) > 0.05 and float(jnp.sum(nxt.qvel[3:5] ** 2)) > 0.5
+    np.testing.assert_allclose(float(reward), float(expected), rtol=1e-5)
+    assert bool(fallen) == bool(shaped_fallen)
 
 
 def test_walker_parity_with_mujoco(walk):

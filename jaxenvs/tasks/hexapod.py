@@ -172,6 +172,10 @@ class WalkConfig(HexapodRandomization):
       progress_weight: weight of the progress term (metres per second toward the target).
       energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
       alive_bonus: reward per step while not fallen.
+      tilt_weight: weight of the tilt penalty ``1 - up_z`` (0 upright, 0.29 at 45 degrees),
+        with ``up_z`` the vertical component of the body's up axis.
+      spin_weight: weight of the penalty on the body's squared roll and pitch rates
+        (rad^2/s^2, body frame); yaw (turning) is free.
       min_height: the episode ends when the body's height falls below this (m).
       min_upright: ... or when the body's z axis' vertical component falls below this
         (0.7: tilted more than ~45 degrees; 0 would be lying on its side). With 0, PPO
@@ -188,6 +192,8 @@ class WalkConfig(HexapodRandomization):
     progress_weight: float = 1.0
     energy_weight: float = 0.002
     alive_bonus: float = 0.05
+    tilt_weight: float = 0.0
+    spin_weight: float = 0.0
     min_height: float = 0.06
     min_upright: float = 0.7
     init_joint_noise: float = 0.05
@@ -198,7 +204,8 @@ class WalkConfig(HexapodRandomization):
         require(self.solver_iterations >= 1, "solver_iterations", "must be >= 1")
         require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
         randomize.check_range("target_distance", self.target_distance, positive=True)
-        for name in ("progress_weight", "energy_weight", "alive_bonus", "init_joint_noise"):
+        weights = ("progress_weight", "energy_weight", "alive_bonus", "tilt_weight", "spin_weight")
+        for name in (*weights, "init_joint_noise"):
             require(getattr(self, name) >= 0, name, "must be >= 0")
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
@@ -214,8 +221,10 @@ class HexapodWalk(Env[WalkConfig]):
       the target is on the floor, the direction horizontal in world).
     * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range.
     * Reward: ``progress_weight * (d_prev - d) / 0.05 - energy_weight * sum|tau * qdot|
-      + alive_bonus`` with ``d`` the horizontal body-target distance; the progress term is
-      the decrease of the distance per step expressed in m/s.
+      - tilt_weight * (1 - up_z) - spin_weight * (w_roll^2 + w_pitch^2) + alive_bonus``
+      with ``d`` the horizontal body-target distance (the progress term is the decrease of
+      the distance per step expressed in m/s), ``up_z`` the vertical component of the
+      body's up axis and ``w`` the body-frame angular velocity.
     * Termination: height < ``min_height`` or the body's up axis z-component <
       ``min_upright`` (tilted more than ~45 degrees, on its side or flipped).
       Truncation: 1000 steps.
@@ -304,7 +313,14 @@ class HexapodWalk(Env[WalkConfig]):
         energy = jnp.sum(jnp.abs(data.actuator_force * data.qvel[6:]))
         upright = quat_to_mat(data.qpos[3:7])[2, 2]
         fallen = (data.qpos[2] < c.min_height) | (upright < c.min_upright)
-        reward = c.progress_weight * progress - c.energy_weight * energy + c.alive_bonus
+        spin = jnp.sum(jnp.square(data.qvel[3:5]))  # free joint: body-frame rates
+        reward = (
+            c.progress_weight * progress
+            - c.energy_weight * energy
+            - c.tilt_weight * (1.0 - upright)
+            - c.spin_weight * spin
+            + c.alive_bonus
+        )
         metrics = {"distance": dist, "progress": progress, "energy": energy}
         return reward, fallen, metrics
 
