@@ -59,7 +59,8 @@ KEPT = ("qfrc_applied", "xfrc_applied", "eq_active", "userdata", "history", "plu
 #: below this many (envs x substeps x dofs) a batch is stepped on the calling thread
 SERIAL_WORK = 1024
 
-#: MuJoCo's rollout keeps one process-wide thread pool: one batch at a time.
+#: one batch at a time: an engine's scratch MjData and MuJoCo's thread pools are shared by
+#: every caller (e.g. the callbacks of several devices running at once)
 _POOL_LOCK = threading.Lock()
 
 
