@@ -158,12 +158,16 @@ def evaluate(
         p, d, z, lo, u, a = (x[:, cols] for x in (progress, distance, upright, low, up, after))
         stats: dict[str, Any] = {}
         if name.endswith("far"):
+            # an env that fell keeps stepping, and under C its physics can blow up (NaN)
+            # after the fall: only the steps while up count, so mask by selection, not by
+            # multiplying by 0 (NaN * 0 is NaN)
             w = u[:steps]
-            stats["speed_m_per_s"] = float((p[:steps] * w).sum() / max(w.sum(), 1))
-            per_env = (p[:steps] * w).sum(0) / np.maximum(w.sum(0), 1)
+            pw = np.where(w, p[:steps], 0.0)
+            stats["speed_m_per_s"] = float(pw.sum() / max(w.sum(), 1))
+            per_env = pw.sum(0) / np.maximum(w.sum(0), 1)
             stats["speed_per_env_min"] = float(per_env.min())
             stats["fell_fraction"] = float(1.0 - a[steps - 1].mean())
-            stats["mean_upright"] = float((z[:steps] * w).sum() / max(w.sum(), 1))
+            stats["mean_upright"] = float(np.where(w, z[:steps], 0.0).sum() / max(w.sum(), 1))
         else:
             close = (d < radius) & u
             reached = close.any(0)
