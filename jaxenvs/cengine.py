@@ -231,12 +231,26 @@ class CEngine:
             )
         force = sensors[:, -1, self.force_offset : self.force_offset + m.nu]
         result = np.concatenate([state[:, -1, :nphys], force], axis=1).astype(packed.dtype)
-        # MuJoCo resets an env whose state turned bad (non-finite or past mjMAXVAL) and
-        # carries on, which would hide the divergence; such an env's time went back, and
-        # its result becomes NaN so that the task's divergence check terminates it
-        bad = ~np.isfinite(packed[:, :nphys]).all(axis=1) | (state[:, -1, 0] <= packed[:, 0])
-        result[bad] = np.nan
+        result[self._was_reset(state0, state, substeps), 1 : 1 + m.nq + m.nv] = np.nan
         return result.reshape(lead + result.shape[1:])
+
+    def _was_reset(self, state0: np.ndarray, state: np.ndarray, substeps: int) -> np.ndarray:
+        """Which envs MuJoCo reset during the step.
+
+        ``mj_step`` resets a state whose positions, velocities or accelerations are
+        non-finite or past ``mjMAXVAL`` to the model's defaults (time 0) and carries on,
+        with only a printed warning; MJX keeps stepping the bad state, and the task flags
+        it ``info["diverged"]``. Such envs are handed back with NaN positions and
+        velocities, so that they are flagged (and, batched, reset) under both engines.
+        A reset shows as a bad state going in, or as a clock that went back.
+        """
+        m = self.model
+        nq, nv = m.nq, m.nv
+        phys = state0[:, : 1 + nq + nv]
+        bad = ~np.all(np.isfinite(phys), axis=1) | np.any(np.abs(phys[:, 1:]) > mujoco.mjMAXVAL, 1)
+        dt = m.opt.timestep
+        expected = state0[:, :1] + dt * np.arange(1, substeps + 1)
+        return bad | np.any(state[:, :, 0] < expected - 0.5 * dt, axis=1)
 
     def _models(
         self, names: tuple[str, ...], params: np.ndarray, lead: tuple, batch: int

@@ -15,7 +15,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from collections.abc import Iterator
-from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -24,6 +23,17 @@ from flax import struct
 
 from jaxenvs import registry
 from jaxenvs.core import Env, TaskConfig
+
+
+class FakeSim:
+    """What a task needs of its sim when there is no physics: a control period and an
+    engine to be stepped by (any engine steps nothing the same way)."""
+
+    physics = "mjx"
+    control_dt = 0.02
+
+    def with_physics(self, physics: str, threads: int | None = None) -> FakeSim:
+        return self
 
 
 class FakeData(struct.PyTreeNode):
@@ -39,7 +49,7 @@ class OneStateConfig(TaskConfig):
 
 class OneState(Env[OneStateConfig]):
     def __init__(self, config: OneStateConfig | None = None) -> None:
-        super().__init__(config or OneStateConfig(), SimpleNamespace(control_dt=0.02))  # type: ignore[arg-type]
+        super().__init__(config or OneStateConfig(), FakeSim())  # type: ignore[arg-type]
 
     observation_size = 1
     action_size = 2
@@ -67,7 +77,7 @@ class ChainConfig(TaskConfig):
 
 class Chain(Env[ChainConfig]):
     def __init__(self, config: ChainConfig | None = None) -> None:
-        super().__init__(config or ChainConfig(), SimpleNamespace(control_dt=0.02))  # type: ignore[arg-type]
+        super().__init__(config or ChainConfig(), FakeSim())  # type: ignore[arg-type]
 
     observation_size = 1
     action_size = 2

@@ -69,3 +69,27 @@ def test_mass_of_a_dropped_geom_is_kept(tmp_path):
     lean = physics_model(xml)
     full = mujoco.MjModel.from_xml_path(str(xml))
     assert lean.ngeom == 0 and lean.body_mass[1] == pytest.approx(full.body_mass[1])
+
+
+def test_c_engine_hands_back_a_state_mujoco_reset_as_nan(tmp_path):
+    """MuJoCo resets a state that goes bad (a state going in, or an acceleration, past
+    mjMAXVAL) to the model's defaults and carries on; the C engine hands such an env back
+    as NaN, as MJX would, so that the task flags it diverged."""
+    from jaxenvs.sim import CSim, Sim
+
+    xml = tmp_path / "slider.xml"
+    xml.write_text(
+        """<mujoco><worldbody><body><joint name="x" type="slide" axis="1 0 0"/>
+        <geom type="sphere" size="0.1" mass="1"/></body></worldbody>
+        <actuator><motor joint="x" gear="1"/></actuator></mujoco>"""
+    )
+    sim = CSim(Sim(xml, timestep=0.01, substeps=4), threads=1)
+    zero = np.zeros(1, np.float32)
+    data = sim.init_data(zero, zero).replace(time=np.float32(0.5))
+    calm = sim.step(None, data, zero + 1)
+    assert np.isfinite(float(calm.qpos[0])) and float(calm.time) == pytest.approx(0.54)
+    # a force of 1e11 N on 1 kg: the acceleration is past mjMAXVAL (1e10), MuJoCo resets
+    wild = sim.step(None, data, zero + 1e11)
+    assert np.isnan(float(wild.qpos[0])) and np.isnan(float(wild.qvel[0]))
+    bad_in = sim.step(None, data.replace(qvel=zero + np.inf), zero)
+    assert np.isnan(float(bad_in.qvel[0]))

@@ -25,10 +25,28 @@ import jax
 import jax.numpy as jnp
 
 
+def _orthogonal(gain: float) -> nn.initializers.Initializer:
+    """Flax's orthogonal initialiser, one matrix at a time even under ``vmap``.
+
+    Its QR factorisation is a LAPACK call; ``vmap`` over seeds (the runner's ``init``,
+    ``make_train``) makes it a batched one, which jaxlib splits over XLA's CPU thread pool
+    and waits for on a worker of that same pool. With two such calls in flight (the actor's
+    and the critic's layers) on a 2-core CPU both workers wait and the program never
+    finishes (the deadlock of benchmarks/NOTES.md, here in ``lapack_sgeqrf_ffi``).
+    ``sequential_vmap`` turns the batch into a loop of single QRs: the same numbers.
+    """
+    base = nn.initializers.orthogonal(gain)
+
+    def init(key: jax.Array, shape: tuple[int, ...], dtype: jnp.dtype = jnp.float32) -> jax.Array:
+        return jax.custom_batching.sequential_vmap(lambda k: base(k, shape, dtype))(key)
+
+    return init
+
+
 def _dense(features: int, gain: float) -> nn.Dense:
     return nn.Dense(
         features,
-        kernel_init=nn.initializers.orthogonal(gain),
+        kernel_init=_orthogonal(gain),
         bias_init=nn.initializers.zeros,
     )
 

@@ -45,7 +45,7 @@ from jaxenvs import compile_cache, files, machine, program_cache, registry, shar
 from jaxenvs.agents import checkpoint
 from jaxenvs.agents.base import CHUNK_METRICS, Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
-from jaxenvs.core import Env, batch_devices
+from jaxenvs.core import Env, batch_devices, resolve_physics
 
 PyTree = Any
 
@@ -506,9 +506,28 @@ class _Run:
         return self.resolved.train.num_seeds
 
 
+def _engine_resolved(resolved: ResolvedConfig) -> ResolvedConfig:
+    """``resolved`` with ``physics="auto"`` replaced by the engine it picks on this machine.
+
+    That is what a run's ``config.yaml`` records, so a run and its resume (or a repeat of
+    it) in one process share one set of compiled programs (:func:`_programs` is cached
+    per config) and one set of stored ones.
+    """
+    if getattr(resolved.env, "physics", None) != "auto":
+        return resolved
+    factory = registry.spec(resolved.env_id).factory
+    cpu_default = getattr(factory, "cpu_physics", None) if isinstance(factory, type) else None
+    if isinstance(cpu_default, str):
+        physics = resolve_physics("auto", cpu_default)
+    else:  # a factory function: build the env to see what it picked
+        physics = factory(resolved.env).physics
+    return dataclasses.replace(resolved, env=dataclasses.replace(resolved.env, physics=physics))
+
+
 def _prepare(
     resolved: ResolvedConfig, out: Path, devices: int | None, say: Callable[[str], None]
 ) -> _Run:
+    resolved = _engine_resolved(resolved)
     programs = _programs(resolved, devices)
     say(machine.describe(programs.env))
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
