@@ -1,9 +1,22 @@
-"""Shared fixtures: one compiled checker per env id for the whole session."""
+"""Shared fixtures: programs compiled once per session and reused by every module.
+
+* ``get_checker(env_id, physics="auto")``: the battery of :mod:`jaxenvs.testing` for one id
+  and engine; its jitted reset, step, vmapped step and batched rollout compile once, and
+  other modules read the rollout's trajectory instead of compiling their own.
+* ``get_batched(env_id, num_envs, **overrides)``: a batched env with its jitted reset and
+  step, one per (id, batch size, overrides).
+
+``physics="auto"`` (what ``jaxenvs.make`` does by default) is MuJoCo's C engine on a CPU
+for the built-in tasks: tests of task logic use it, tests of MJX itself say
+``physics="mjx"``.
+"""
 
 from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 # one persistent compile cache for the whole test session, in a fresh directory (never
@@ -16,21 +29,45 @@ import pytest
 
 import jaxenvs
 from jaxenvs import compile_cache
+from jaxenvs.core import BatchedEnv
 from jaxenvs.testing import TaskChecker
 
 _SESSION_CACHE = os.environ["JAXENVS_CACHE_DIR"]
-_CHECKERS: dict[str, TaskChecker] = {}
+_CHECKERS: dict[tuple[str, str], TaskChecker] = {}
+_BATCHED: dict[tuple[Any, ...], Batched] = {}
 
 
-def checker_for(env_id: str) -> TaskChecker:
-    if env_id not in _CHECKERS:
-        _CHECKERS[env_id] = TaskChecker(jaxenvs.make(env_id))
-    return _CHECKERS[env_id]
+class Batched(NamedTuple):
+    """A batched env and its jitted reset and step."""
+
+    env: BatchedEnv
+    reset: Callable[..., Any]
+    step: Callable[..., Any]
+
+
+def checker_for(env_id: str, physics: str = "auto") -> TaskChecker:
+    if (env_id, physics) not in _CHECKERS:
+        _CHECKERS[env_id, physics] = TaskChecker(jaxenvs.make(env_id, physics=physics))
+    return _CHECKERS[env_id, physics]
+
+
+def batched_for(env_id: str, num_envs: int, **overrides: Any) -> Batched:
+    key = (env_id, num_envs, *sorted(overrides.items()))
+    if key not in _BATCHED:
+        benv = jaxenvs.make(env_id, num_envs=num_envs, **overrides)
+        assert isinstance(benv, BatchedEnv)
+        _BATCHED[key] = Batched(benv, jax.jit(benv.reset), jax.jit(benv.step))
+    return _BATCHED[key]
 
 
 @pytest.fixture(scope="session")
 def get_checker():
     return checker_for
+
+
+@pytest.fixture(scope="session")
+def get_batched():
+    return batched_for
 
 
 def _session_compile_cache() -> None:

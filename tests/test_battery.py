@@ -1,4 +1,9 @@
-"""The battery every registered id passes (see jaxenvs.testing)."""
+"""The battery every registered id passes (see jaxenvs.testing).
+
+Default tier: each id on the engine ``jaxenvs.make`` picks here (MuJoCo's C engine on a
+CPU: the battery checks the task's code, which both engines share). Full tier: each id
+again on MJX, whose compile is what makes it long (the walker's about a minute on 2 cores).
+"""
 
 from __future__ import annotations
 
@@ -7,28 +12,26 @@ import pytest
 import jaxenvs
 
 IDS = jaxenvs.list_envs()
+ENGINES = [pytest.param("auto", id="auto"), pytest.param("mjx", id="mjx", marks=pytest.mark.full)]
+
+pytestmark = [pytest.mark.parametrize("physics", ENGINES), pytest.mark.parametrize("env_id", IDS)]
 
 
-@pytest.mark.parametrize("env_id", IDS)
-def test_single_trace(get_checker, env_id):
-    get_checker(env_id).check_single_trace()
+def test_single_trace(get_checker, env_id, physics):
+    get_checker(env_id, physics).check_single_trace()
 
 
-@pytest.mark.parametrize("env_id", IDS)
-def test_determinism(get_checker, env_id):
-    get_checker(env_id).check_determinism()
+def test_determinism(get_checker, env_id, physics):
+    get_checker(env_id, physics).check_determinism()
 
 
-@pytest.mark.parametrize("env_id", IDS)
-def test_spaces(get_checker, env_id):
-    get_checker(env_id).check_spaces()
+def test_spaces(get_checker, env_id, physics):
+    get_checker(env_id, physics).check_spaces()
 
 
-@pytest.mark.parametrize("env_id", IDS)
-def test_vmap_matches_single(get_checker, env_id):
-    get_checker(env_id).check_vmap_matches()
+def test_vmap_matches_single(get_checker, env_id, physics):
+    get_checker(env_id, physics).check_vmap_matches()
 
 
-@pytest.mark.parametrize("env_id", IDS)
-def test_random_rollout(get_checker, env_id):
-    get_checker(env_id).check_rollout()
+def test_random_rollout(get_checker, env_id, physics):
+    get_checker(env_id, physics).check_rollout()

@@ -184,7 +184,7 @@ def test_unknown_params_field_is_refused_by_name():
         env.sim.step(jaxenvs.make("CartpoleBalance-v0", physics="mjx").sim.mx, data, jnp.zeros(1))
 
 
-@pytest.mark.slow  # two walker compiles (~30 s on 2 cores); the full tier runs it
+@pytest.mark.full  # two walker compiles (~30 s on 2 cores); the full tier runs it
 def test_walker_contact_parity():
     """The walker on its feet: C and MJX within test_hexapod's MJX-vs-MuJoCo tolerances."""
     from tests.test_hexapod import WALK_HEIGHT_ATOL, WALK_JOINT_ATOL, WALK_XY_ATOL

@@ -79,12 +79,13 @@ def test_discrete_out_of_range_is_clipped():
     )
 
 
-def test_diverged_env_terminates_and_is_isolated():
+@pytest.mark.parametrize("physics", ["auto", pytest.param("mjx", marks=pytest.mark.full)])
+def test_diverged_env_terminates_and_is_isolated(get_batched, physics):
     """One env with a non-finite state is terminated and reset; the others are
-    bit-for-bit what they would have been."""
-    benv = jaxenvs.make("CartpoleBalance-v0", num_envs=4)
-    step = jax.jit(benv.step)
-    s = benv.reset(jax.random.key(0))
+    bit-for-bit what they would have been (on either engine: MuJoCo C would reset the
+    state itself, the C engine hands it back as NaN)."""
+    _, reset, step = get_batched("CartpoleBalance-v0", 4, physics=physics)
+    s = reset(jax.random.key(0))
     qpos = s.data.qpos.at[1, 1].set(jnp.nan)
     poisoned = s.replace(data=s.data.replace(qpos=qpos))
     a = jnp.zeros((4, 1))
@@ -99,43 +100,42 @@ def test_diverged_env_terminates_and_is_isolated():
         np.testing.assert_array_equal(np.asarray(bad_next.obs[i]), np.asarray(clean_next.obs[i]))
 
 
-def test_batched_shapes_and_fresh_autoreset():
-    benv = jaxenvs.make("CartPole-v0", num_envs=16)
-    s = benv.reset(jax.random.key(0))
-    assert s.obs.shape == (16, 4)
-    with pytest.raises(ValueError, match=r"expected actions of shape \(16,\)"):
-        benv.step(s, jnp.zeros((8,), jnp.int32))
-
-    def body(s, k):
-        s = benv.step(s, jax.random.randint(k, (16,), 0, 2))
-        return s, (
-            s.obs,
-            s.info["final_obs"],
-            s.done,
-            s.time,
-            s.info["final_length"],
-            s.info["final_return"],
-        )
-
-    keys = jax.random.split(jax.random.key(1), 200)
-    _, (obs, final, done, time, flen, fret) = jax.jit(lambda s: jax.lax.scan(body, s, keys))(s)
-    obs, final, done = np.asarray(obs), np.asarray(final), np.asarray(done)
+def test_batched_shapes_and_fresh_autoreset(get_checker):
+    # the battery's 8-env, 300-step random rollout of CartPole-v0 (compiled once)
+    checker = get_checker("CartPole-v0")
+    benv = checker.benv
+    s, traj = checker.rollout()
+    assert s.obs.shape == (8, 4)
+    with pytest.raises(ValueError, match=r"expected actions of shape \(8,\)"):
+        benv.step(s, jnp.zeros((4,), jnp.int32))
+    obs, final = np.asarray(traj.obs), np.asarray(traj.info["final_obs"])
+    done, time = np.asarray(traj.done), np.asarray(traj.time)
+    flen, fret = np.asarray(traj.info["final_length"]), np.asarray(traj.info["final_return"])
     assert done.sum() > 16  # random play ends CartPole episodes within ~20-40 steps
     starts = obs[done]
     assert np.all(np.abs(starts) <= 0.05)  # a fresh start from the init distribution
     assert len(np.unique(starts[:, 0])) == len(starts)  # fresh, not cached
-    assert np.all(np.asarray(time)[done] == 0)
+    assert np.all(time[done] == 0)
     assert np.all(np.abs(final[done][:, 2]) > 0.2) or np.all(np.abs(final[done][:, 0]) > 0)
     # final return of CartPole = final length (+1 per step)
-    np.testing.assert_array_equal(np.asarray(fret)[done], np.asarray(flen)[done])
-    assert np.all(np.asarray(flen)[done] >= 1)
+    np.testing.assert_array_equal(fret[done], flen[done])
+    assert np.all(flen[done] >= 1)
 
 
-def test_scan_unroll_hint_does_not_change_results():
-    """The unroll hint is a compile choice only: same keys, same trajectory."""
-    benv = jaxenvs.make("CartPole-v0", num_envs=8)
+def test_scan_unroll_hints_are_set():
+    benv = jaxenvs.make("CartPole-v0", num_envs=8, physics="mjx")
     assert benv.scan_unroll > 1  # the cartpole's measured choice (benchmarks/NOTES.md)
+    # a C step is a host call that cannot fuse across steps: no unrolling there
+    assert jaxenvs.make("CartPole-v0", num_envs=8, physics="c").scan_unroll == 1
     assert all(isinstance(jaxenvs.make(i).scan_unroll, int) for i in jaxenvs.list_envs())
+
+
+@pytest.mark.full  # two MJX compiles of a 30-step scan, one of them unrolled
+def test_scan_unroll_hint_does_not_change_results():
+    """The unroll hint is a compile choice only: same keys, same trajectory. On MJX,
+    whose compile the hint is measured for."""
+    benv = jaxenvs.make("CartPole-v0", num_envs=8, physics="mjx")
+    assert benv.scan_unroll > 1
 
     def rollout(unroll):
         def run(key):

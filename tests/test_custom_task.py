@@ -2,6 +2,10 @@
 import, goes through the battery, ``make``, Gymnasium, ``jaxenvs train`` and
 ``jaxenvs bench`` with no further code. Also: the battery names what a broken task got
 wrong, and installed packages are found through the ``jaxenvs.envs`` entry points.
+
+The task defaults to MJX (it declares no faster CPU engine); the tests of its logic step it
+with the C engine (``physics`` is one more config override, tests/engines.py), the bench
+runs it on MJX, and the full tier runs the battery on MJX as well.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from engines import TASK_LOGIC
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "pendulum"
@@ -43,13 +48,15 @@ def test_registered_on_import() -> None:
     assert jaxenvs.spec(CLI_ID) is jaxenvs.spec(ID)
 
 
-def test_passes_the_battery() -> None:
+@pytest.mark.parametrize("physics", [TASK_LOGIC, pytest.param("mjx", marks=pytest.mark.full)])
+def test_passes_the_battery(physics: str) -> None:
     # 50-step episodes so that the 120-step rollout sees auto-resets
-    check_task(jaxenvs.make(ID, episode_length=50), num_envs=4, rollout_steps=120)
+    env = jaxenvs.make(ID, episode_length=50, physics=physics)
+    check_task(env, num_envs=4, rollout_steps=120)
 
 
 def test_make_batched_and_overrides() -> None:
-    benv = jaxenvs.make(CLI_ID, num_envs=4, max_torque=3.0)
+    benv = jaxenvs.make(CLI_ID, num_envs=4, max_torque=3.0, physics=TASK_LOGIC)
     assert isinstance(benv, jaxenvs.BatchedEnv) and benv.config.max_torque == 3.0
     state = jax.jit(benv.reset)(jax.random.key(0))
     state = jax.jit(benv.step)(state, jnp.ones((4, 1)))
@@ -63,8 +70,9 @@ def test_make_batched_and_overrides() -> None:
 
 
 def test_gymnasium_make() -> None:
-    env = gymnasium.make(f"jaxenvs/{ID}")
+    env = gymnasium.make(f"jaxenvs/{ID}", physics=TASK_LOGIC)
     assert env.spec is not None and env.spec.max_episode_steps == 200
+    assert env.unwrapped.jax_env.physics == TASK_LOGIC
     obs, _ = env.reset(seed=0)
     assert obs.shape == (3,) and env.observation_space.contains(obs)
     total = 0.0
@@ -84,6 +92,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
         "train", CLI_ID, "--algo", "ppo", "--config", str(EXAMPLE / "ppo_MyPendulum-v0.yaml"),
         "--num-envs", "4", "--total-steps", "800", "--eval-episodes", "1",
         "--no-video", "--no-compile-cache", "--quiet", "--out", str(out),
+        "--physics", TASK_LOGIC,
     ]  # fmt: skip
     assert main(argv) == 0
     return out
@@ -93,6 +102,7 @@ def test_train_from_the_command_line(run_dir: Path) -> None:
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["env_steps"] >= 800 and np.isfinite(summary["eval_mean_return"])
     assert (run_dir / "config.yaml").read_text().count(CLI_ID) == 1
+    assert summary["physics"] == TASK_LOGIC
 
 
 def test_trained_policy_plays(run_dir: Path) -> None:
@@ -166,12 +176,12 @@ class Retraces(Pendulum):
 
 def test_battery_names_a_reset_that_ignores_its_key() -> None:
     with pytest.raises(TaskCheckError, match=r"^\[determinism\] reset with different keys"):
-        check_task(IgnoresKey(PendulumConfig()))
+        check_task(IgnoresKey(PendulumConfig(physics=TASK_LOGIC)))
 
 
 def test_battery_names_a_step_that_retraces() -> None:
     with pytest.raises(TaskCheckError, match=r"^\[single_trace\] reset traced 1x and step [2-9]x"):
-        check_task(Retraces(PendulumConfig()))
+        check_task(Retraces(PendulumConfig(physics=TASK_LOGIC)))
 
 
 # ------------------------------------------------------------ installed packages

@@ -103,6 +103,7 @@ def four_devices(tmp_path_factory):
     return json.loads(Path(f"{out}.json").read_text()), dict(np.load(f"{out}.npz"))
 
 
+@pytest.mark.full  # a 4-device subprocess: the full tier
 def test_batch_spreads_over_all_devices_by_default(four_devices):
     res, _ = four_devices
     assert res["devices"] == 4
@@ -112,6 +113,7 @@ def test_batch_spreads_over_all_devices_by_default(four_devices):
     assert res["c_devices"] == 1
 
 
+@pytest.mark.full  # a 4-device subprocess: the full tier
 def test_spread_rollouts_are_bit_identical_to_one_device(four_devices):
     _, arrays = four_devices
     assert arrays["done_1"].any()  # episodes ended: the auto-reset ran on every layout
@@ -122,6 +124,7 @@ def test_spread_rollouts_are_bit_identical_to_one_device(four_devices):
     np.testing.assert_array_equal(arrays["c_2"], arrays["c_1"])
 
 
+@pytest.mark.full  # a 4-device subprocess: the full tier
 def test_uneven_batches(four_devices):
     res, _ = four_devices
     assert res["uneven_devices"] == 3
@@ -129,6 +132,7 @@ def test_uneven_batches(four_devices):
     assert "num_envs=6" in res["uneven_error"] and "4 or 8" in res["uneven_error"]
 
 
+@pytest.mark.full  # a 4-device subprocess: the full tier
 def test_vector_env_spread_matches_one_device(four_devices):
     res, _ = four_devices
     assert res["vector_equal"] is True

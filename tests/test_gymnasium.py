@@ -78,7 +78,7 @@ def test_passes_gymnasium_env_checker(env_id):
     env.close()
 
 
-@pytest.mark.slow
+@pytest.mark.full
 @pytest.mark.parametrize("env_id", jaxenvs.list_envs())
 def test_every_id_passes_env_checker(env_id):
     env = _make(f"jaxenvs/{env_id}", render_mode="rgb_array", width=64, height=48)
@@ -345,7 +345,7 @@ def test_vector_episode_statistics_wrapper(short_vec):
 
 
 # ----------------------------------------------------------------- Stable-Baselines3
-@pytest.mark.slow
+@pytest.mark.full
 def test_stable_baselines3_ppo_learns_cartpole():
     """The README's example: SB3's make_vec_env + PPO on the facade, evaluated greedily."""
     sb3 = pytest.importorskip("stable_baselines3")

@@ -3,7 +3,7 @@
 Complements tests/test_core.py (eager shape/dtype errors, NaN and 1e9 on one env, one
 diverged env isolated), tests/test_cli.py (bad config keys name key and file),
 tests/test_gymnasium.py (facade errors, close twice) and tests/test_runner.py (corrupt,
-truncated and foreign checkpoints). One env program is compiled for the module.
+truncated and foreign checkpoints). One env program is compiled for the session.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import pytest
 import yaml
 from tabular_fakes import fake_envs
 
-import jaxenvs
 from jaxenvs import cli, files
 from jaxenvs.agents import checkpoint, runner
 from jaxenvs.agents.checkpoint import CheckpointError
@@ -43,10 +42,9 @@ CHAIN_AGENT = {
 
 
 @pytest.fixture(scope="module")
-def balance():
-    """CartpoleBalance, batched over N envs: one jitted reset and step for the module."""
-    benv = jaxenvs.make("CartpoleBalance-v0", num_envs=N)
-    return benv, jax.jit(benv.reset), jax.jit(benv.step)
+def balance(get_batched):
+    """CartpoleBalance, batched over N envs: one jitted reset and step for the session."""
+    return get_batched("CartpoleBalance-v0", N)
 
 
 # ------------------------------------------------------------------------ actions

@@ -2,9 +2,10 @@
 one compile of the training chunk.
 
 tests/test_runner.py already checks a tabular resume after chunk 2 and one Ctrl-C; here
-every chunk boundary is tried, and a tiny PPO run on real MJX physics (CartpoleBalance,
-with a divergence bound low enough that some envs diverge) is checked for bit-identical
-repeats and a Ctrl-C + resume. Each trainer is compiled once for the module.
+every chunk boundary is tried, and a tiny PPO run on real physics (CartpoleBalance, with a
+divergence bound low enough that some envs diverge) is checked for bit-identical repeats
+and a Ctrl-C + resume: on the engine ``physics="auto"`` picks (the C engine on a CPU) in
+the default tier, on MJX in the full tier. Each trainer is compiled once for the module.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ def traces():
 
     def build(resolved):
         env, trainer = real_build(resolved)
-        name = f"{resolved.algo}:{resolved.env_id}"
+        name = f"{resolved.algo}:{resolved.env_id}:{env.physics}"
         return env, dataclasses.replace(
             trainer,
             init=counting(trainer.init, f"{name}:init"),
@@ -126,10 +127,11 @@ def _same_checkpoint(a, b):
 
 
 # ----------------------------------------------------------------------------- PPO
-@pytest.fixture(scope="module")
-def ppo(traces, tmp_path_factory):
-    resolved = _resolved(tmp_path_factory, PPO_FILE, "ppo")
-    out = tmp_path_factory.mktemp("ppo_a")
+@pytest.fixture(scope="module", params=["auto", pytest.param("mjx", marks=pytest.mark.full)])
+def ppo(request, traces, tmp_path_factory):
+    data = {**PPO_FILE, "env": {**PPO_FILE["env"], "physics": request.param}}
+    resolved = _resolved(tmp_path_factory, data, f"ppo_{request.param}")
+    out = tmp_path_factory.mktemp(f"ppo_{request.param}")
     return resolved, out, runner.train(resolved, out, quiet=True)
 
 
@@ -169,8 +171,9 @@ def test_ppo_divergence_is_counted_in_the_run_metrics(ppo):
 
 def test_ppo_chunk_and_init_compile_once(ppo, traces):
     """After fresh runs, a repeat, an interrupted run and its resume."""
-    assert traces["ppo:CartpoleBalance-v0:chunk"] == 1, traces
-    assert traces["ppo:CartpoleBalance-v0:init"] == 1, traces
+    name = f"ppo:CartpoleBalance-v0:{ppo[2]['physics']}"
+    assert traces[f"{name}:chunk"] == 1, traces
+    assert traces[f"{name}:init"] == 1, traces
 
 
 # ------------------------------------------------------------------------ tabular
@@ -202,4 +205,4 @@ def test_tabular_divergence_is_counted_and_compiled_once(chain, traces):
     _, out_a, _ = chain
     rows = runner._read_progress(out_a / runner.PROGRESS_FILE)
     assert sum(int(r["diverged"]) for r in rows) > 0
-    assert traces["qlearning:Test-Chain-v0:chunk"] == 1, traces
+    assert traces["qlearning:Test-Chain-v0:mjx:chunk"] == 1, traces  # the fakes' "engine"

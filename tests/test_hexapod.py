@@ -1,7 +1,9 @@
 """Hexapod tasks: standing, falling, reachability, and parity with MuJoCo C.
 
-Each env's ``step`` is jitted once per module and reused by every test (the walker's
-step is the costly compile).
+Each env's ``step`` is jitted once per module and reused by every test. The task checks
+run on the engine ``jaxenvs.make`` picks here (the C engine on a CPU); the parity checks
+(actions mapped to servo targets by hand, stepped by ``mujoco.mj_step``) run on it, and
+on MJX in the full tier (an MJX compile each; the walker's is about 15 s).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from jaxenvs.tasks.hexapod import (
     JOINT_RANGE,
     HexapodOneLeg,
     HexapodWalk,
+    OneLegConfig,
     WalkConfig,
     leg_tip,
     quat_to_mat,
@@ -34,16 +37,26 @@ WALK_XY_ATOL = 0.06  # m, torso horizontal position after up to 5 s of shuffling
 WALK_JOINT_ATOL = 0.1  # rad, joint angles
 
 
+_JITTED: dict[tuple[type, str], tuple] = {}
+
+
+def _jitted(task: type, physics: str = "auto") -> tuple:
+    """(env, jitted reset, jitted step) of ``task`` on ``physics``, once per module."""
+    if (task, physics) not in _JITTED:
+        config = {HexapodWalk: WalkConfig, HexapodOneLeg: OneLegConfig}[task](physics=physics)
+        env = task(config)
+        _JITTED[task, physics] = env, jax.jit(env.reset), jax.jit(env.step)
+    return _JITTED[task, physics]
+
+
 @pytest.fixture(scope="module")
 def walk():
-    env = HexapodWalk()
-    return env, jax.jit(env.reset), jax.jit(env.step)
+    return _jitted(HexapodWalk)
 
 
 @pytest.fixture(scope="module")
 def leg():
-    env = HexapodOneLeg()
-    return env, jax.jit(env.reset), jax.jit(env.step)
+    return _jitted(HexapodOneLeg)
 
 
 def _mj_rollout(env, qpos, mocap, ctrls):
@@ -124,8 +137,12 @@ def test_walker_tilt_and_spin_penalties(walk):
     assert bool(fallen) == bool(shaped_fallen)
 
 
-def test_walker_parity_with_mujoco(walk):
-    env, reset, step = walk
+@pytest.mark.parametrize(
+    "physics",
+    ["auto", pytest.param("mjx", marks=pytest.mark.full)],  # the walker's MJX compile
+)
+def test_walker_parity_with_mujoco(physics):
+    env, reset, step = _jitted(HexapodWalk, physics)
     state = reset(jax.random.key(3))
     qpos0 = np.asarray(state.data.qpos, np.float64)
     mocap = np.asarray(state.data.mocap_pos, np.float64)
@@ -183,8 +200,9 @@ def test_one_leg_servo_reaches_target(leg):
     assert float(state.reward) > -1e-4
 
 
-def test_one_leg_parity_with_mujoco(leg):
-    env, reset, step = leg
+@pytest.mark.parametrize("physics", ["auto", pytest.param("mjx", marks=pytest.mark.full)])
+def test_one_leg_parity_with_mujoco(physics):
+    env, reset, step = _jitted(HexapodOneLeg, physics)
     state = reset(jax.random.key(6))
     qpos0 = np.asarray(state.data.qpos, np.float64)
     mocap = np.asarray(state.data.mocap_pos, np.float64)

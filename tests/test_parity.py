@@ -1,4 +1,10 @@
-"""Parity of each env's MJX step with MuJoCo C (``mujoco.mj_step``, float64, on the host).
+"""Parity of each env's step with MuJoCo C (``mujoco.mj_step``, float64, on the host).
+
+Each case runs on MJX (``physics="mjx"``: the engine these tolerances were measured for)
+and on the engine ``jaxenvs.make`` picks here (the C engine on a CPU, whose float32 state
+between control steps drifts no more than MJX's float32 arithmetic). Default tier: every
+case on the picked engine, and CartpoleBalance-v0 on MJX; full tier: the other MJX cases
+(each costs an MJX compile).
 
 For every case: reset the env, copy its state (qpos, qvel, mocap) into a host ``MjData``
 of the same MJCF (with the env's default params written into the host model), then for
@@ -11,7 +17,7 @@ must NOT agree, which shows the tolerance is tight enough to catch a model mista
 This guards what no reward curve reveals: a wrong integrator, timestep, substep count,
 actuator mapping or a stage skipped in a hand-ordered MJX step.
 
-Adding a robot is one ``ParityCase`` in ``CASES``. The harness assumes the task holds
+Adding a robot is one ``ParityCase`` in ``BASE_CASES``. The harness assumes the task holds
 ``ctrl`` constant over a control step (``Sim.step``) and
 keeps randomisable model fields in ``params.model``; a task whose controller runs at the
 physics rate (``Sim.step_controlled``, e.g. ``CartpoleStayUp-v0``) needs a host mirror
@@ -57,12 +63,13 @@ class ParityCase:
     qvel_atol: float
     overrides: tuple[tuple[str, Any], ...] = ()
     seed: int = 0
+    physics: str = "auto"
 
     def __str__(self) -> str:
-        return self.env_id
+        return f"{self.env_id}-{self.physics}"
 
 
-CASES = [
+BASE_CASES = [
     # measured over 100 steps (seeds 0, 1): drift qpos <= 1.8e-7, qvel <= 7.8e-7;
     # a 1% gear error: qpos >= 8e-3
     ParityCase(
@@ -80,6 +87,19 @@ CASES = [
     # position servos, gravity, no contacts: drift qpos <= 4.1e-7, qvel <= 8.1e-6;
     # a 1% gear error: qpos >= 2.8e-2 (the walker's contacts: tests/test_hexapod.py)
     ParityCase("HexapodOneLeg-v0", qpos_atol=5e-6, qvel_atol=1e-4),
+]
+#: MJX cases in the default tier (the cheapest MJX compile); the others run in the full tier
+DEFAULT_MJX = ("CartpoleBalance-v0",)
+CASES = [
+    *BASE_CASES,
+    *(
+        pytest.param(
+            dataclasses.replace(case, physics="mjx"),
+            marks=() if case.env_id in DEFAULT_MJX else pytest.mark.full,
+            id=f"{case.env_id}-mjx",
+        )
+        for case in BASE_CASES
+    ),
 ]
 
 
@@ -113,7 +133,8 @@ def _host_trajectory(env: Any, state0: Any, ctrls: np.ndarray, gear_factor: floa
 def run_case(case: ParityCase):
     """(case, env, initial state, MJX qpos[T], MJX qvel[T], host qpos[T], host qvel[T],
     ctrls[T]) for ``STEPS`` control steps of random actions."""
-    env = jaxenvs.make(case.env_id, episode_length=10 * STEPS, **dict(case.overrides))
+    overrides = dict(case.overrides)
+    env = jaxenvs.make(case.env_id, episode_length=10 * STEPS, physics=case.physics, **overrides)
     reset_key, action_key = jax.random.split(jax.random.key(case.seed))
     state0 = jax.jit(env.reset)(reset_key)
     step = jax.jit(env.step)
@@ -134,7 +155,7 @@ def parity_run(request):
     return run_case(request.param)
 
 
-def test_mjx_matches_mujoco_c(parity_run):
+def test_step_matches_mujoco_c(parity_run):
     case, _, _, qpos, qvel, host_qpos, host_qvel, _ = parity_run
     assert np.abs(host_qpos[-1] - host_qpos[0]).max() > 0.1  # a trajectory, not a rest
     err_q = np.abs(qpos - host_qpos).max(axis=1)

@@ -132,24 +132,22 @@ def test_targets_uniform_in_reach_disk(env, vreset):
 
 def test_target_radius_param_bounds_targets(env, vreset):
     params = env.default_params.replace(target_radius=jnp.float32(0.05))
-    s = vreset(jax.random.split(jax.random.key(9), 1024), params)
+    s = vreset(jax.random.split(jax.random.key(9), 8192), params)  # the program above
     r = np.linalg.norm(np.asarray(s.data.mocap_pos)[:, 0, :2], axis=-1)
     assert r.max() <= 0.05 + 1e-7 and r.max() > 0.045
 
 
-def test_target_resampled_at_every_auto_reset():
-    benv = jaxenvs.make("Reacher-v0", num_envs=16, episode_length=3)
-    s = jax.jit(benv.reset)(jax.random.key(10))
-    step = jax.jit(benv.step)
-    targets = [np.asarray(s.data.mocap_pos)[:, 0, :2]]
-    for _ in range(2):
-        for _ in range(3):
-            s = step(s, jnp.zeros((16, 2)))
-        assert np.asarray(s.truncated).all()
-        targets.append(np.asarray(s.data.mocap_pos)[:, 0, :2])
-    assert np.all(np.linalg.norm(targets[1] - targets[0], axis=-1) > 1e-6)
-    assert np.all(np.linalg.norm(targets[2] - targets[1], axis=-1) > 1e-6)
-    assert np.all(np.linalg.norm(np.concatenate(targets), axis=-1) <= REACH + 1e-6)
+def test_target_resampled_at_every_auto_reset(get_checker):
+    # the battery's rollout: 8 envs x 300 random steps of 50-step episodes, 6 resets each
+    state0, traj = get_checker("Reacher-v0").rollout()
+    first = np.asarray(state0.data.mocap_pos)[None]
+    targets = np.concatenate([first, np.asarray(traj.data.mocap_pos)])[:, :, 0, :2]
+    done = np.asarray(traj.done)
+    assert done.sum() == 8 * 6 and np.asarray(traj.truncated)[done].all()
+    # a new target exactly at each auto-reset, and the same one all episode long
+    moved = np.linalg.norm(targets[1:] - targets[:-1], axis=-1) > 1e-6
+    np.testing.assert_array_equal(moved, done)
+    assert np.all(np.linalg.norm(targets, axis=-1) <= REACH + 1e-6)
 
 
 def test_zero_action_keeps_arm_still_from_rest():

@@ -87,12 +87,11 @@ def test_list_of_states_matches_stacked(env, trajectory):
     np.testing.assert_array_equal(frames, stacked[np.array([0, 5, 11])])
 
 
-def test_one_env_of_a_batched_rollout():
-    benv = jaxenvs.make("CartpoleBalance-v0", num_envs=3)
-    step = jax.jit(benv.step)
-    states = [benv.reset(jax.random.key(1))]
+def test_one_env_of_a_batched_rollout(get_batched):
+    benv, reset, step = get_batched("CartpoleBalance-v0", 4)
+    states = [reset(jax.random.key(1))]
     for _ in range(3):
-        states.append(step(states[-1], jnp.ones((3, 1))))
+        states.append(step(states[-1], jnp.ones((4, 1))))
     batched = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
     with pytest.raises(ValueError, match="select one env"):
         render.render_frames(benv, batched, width=W, height=H)
@@ -200,7 +199,7 @@ def test_cli_render_user_errors(tmp_path, monkeypatch, capsys, extra, match):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.slow  # trains a tiny tabular run first (~1 min of CPU)
+@pytest.mark.full  # trains a tiny tabular run first (~1 min of CPU)
 def test_cli_render_with_a_trained_policy(tmp_path, capsys):
     from jaxenvs.agents import runner
 

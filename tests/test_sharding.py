@@ -1,11 +1,18 @@
-"""Env batches and PPO spread over several devices (jaxenvs.sharding).
+"""Env batches and PPO spread over several devices (jaxenvs.sharding), on MJX.
 
 The multi-device checks run in subprocesses, because the CPU device count
-(``XLA_FLAGS=--xla_force_host_platform_device_count=N``) must be set before JAX starts:
-one process with 2 devices and one with 4, run side by side, between them covering
-meshes of 1, 2 and 4 devices for both the rollout and PPO. Each writes its results to an
-``.npz``; this module compares them. On two idle cores the module takes about 1.5 min
-(each subprocess spends about 75 s of CPU time, mostly compiling).
+(``XLA_FLAGS=--xla_force_host_platform_device_count=N``) must be set before JAX starts.
+Each writes its results to an ``.npz``; this module compares them. MJX, because its
+programs are what the compiler partitions over the devices (the C engine's host callback
+runs on one device whatever the mesh).
+
+* Default tier, a smoke test (``smoke``): one process with 2 devices, 4 envs of
+  CartpoleStayUp-v0 (no scan unrolling: the cheapest MJX rollout to compile), a rollout on
+  meshes of 1 and 2 devices; about 20 s on two cores.
+* Full tier (``runs``): one process with 2 devices and one with 4, run side by side,
+  between them covering meshes of 1, 2 and 4 devices for both the rollout and PPO on
+  CartpoleBalance-v0. On two idle cores that takes about 1.5 min (each subprocess spends
+  about 75 s of CPU time, mostly compiling).
 
 Tolerances: the sharded rollout does the same per-env arithmetic as the one-device one,
 so it must match to 1e-6 (it is bitwise equal on the CPU); PPO's gradient and statistics
@@ -41,19 +48,20 @@ _SCRIPT = textwrap.dedent(
     from jaxenvs.agents import ppo
 
     out_path = sys.argv[1]
-    rollout_meshes = [int(n) for n in sys.argv[2].split(",")]
-    ppo_meshes = [int(n) for n in sys.argv[3].split(",")]
+    run = json.loads(sys.argv[2])
+    rollout_meshes, ppo_meshes = run["rollout_meshes"], run["ppo_meshes"]
     assert jax.device_count() == max(rollout_meshes + ppo_meshes), jax.devices()
-    env_id = "CartpoleBalance-v0"
-    benv = jaxenvs.make(env_id, num_envs=8, episode_length=10)  # auto-resets inside
+    env_id = run["env_id"]
+    # auto-resets inside (episodes of 10 steps); MJX, stated, not picked by "auto"
+    benv = jaxenvs.make(env_id, num_envs=run["num_envs"], episode_length=10, physics="mjx")
     cfg = ppo.PPOConfig(total_steps=256, num_envs=8, num_steps=8, updates_per_chunk=1,
                         update_epochs=1, num_minibatches=2, actor_hidden=(16,),
                         critic_hidden=(16,))
-    trainer = ppo.make_trainer(jaxenvs.make(env_id, episode_length=10), cfg)
+    trainer = ppo.make_trainer(jaxenvs.make(env_id, episode_length=10, physics="mjx"), cfg)
     arrays, checks = {}, {}
     for n in rollout_meshes:
         mesh = sh.make_mesh(n)
-        state, rewards = sh.make_sharded_rollout(benv, mesh, steps=25)(jax.random.key(3))
+        state, rewards = sh.make_sharded_rollout(benv, mesh, run["steps"])(jax.random.key(3))
         arrays[f"rollout{n}_rewards"] = np.asarray(rewards)
         arrays[f"rollout{n}_obs"] = np.asarray(state.obs)
         arrays[f"rollout{n}_qpos"] = np.asarray(state.data.qpos)
@@ -78,7 +86,8 @@ _SCRIPT = textwrap.dedent(
             sh.is_replicated(x, mesh) for x in jax.tree.leaves(rs.params))
     if jax.device_count() > 1:
         try:
-            sh.make_sharded_rollout(jaxenvs.make(env_id, num_envs=7), sh.make_mesh(2), 2)
+            sh.make_sharded_rollout(
+                jaxenvs.make(env_id, num_envs=7, physics="mjx"), sh.make_mesh(2), 2)
         except ValueError as err:
             checks["uneven_error"] = str(err)
     np.savez(out_path, **arrays)
@@ -88,7 +97,13 @@ _SCRIPT = textwrap.dedent(
 
 
 def _launch(
-    tmp: Path, devices: int, rollout_meshes: str, ppo_meshes: str
+    tmp: Path,
+    devices: int,
+    rollout_meshes: list[int],
+    ppo_meshes: list[int],
+    env_id: str = "CartpoleBalance-v0",
+    num_envs: int = 8,
+    steps: int = 25,
 ) -> tuple[subprocess.Popen[str], Path]:
     out = tmp / f"devices{devices}.npz"
     env = dict(os.environ)
@@ -96,8 +111,15 @@ def _launch(
         env.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={devices}"
     ).strip()
     env["JAX_PLATFORMS"] = "cpu"
+    run = dict(
+        rollout_meshes=rollout_meshes,
+        ppo_meshes=ppo_meshes,
+        env_id=env_id,
+        num_envs=num_envs,
+        steps=steps,
+    )
     proc = subprocess.Popen(
-        [sys.executable, "-c", _SCRIPT, str(out), rollout_meshes, ppo_meshes],
+        [sys.executable, "-c", _SCRIPT, str(out), json.dumps(run)],
         env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -106,12 +128,7 @@ def _launch(
     return proc, out
 
 
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """Both subprocesses, run in parallel: arrays and checks of meshes 1, 2 and 4 (each
-    compile split so the two take about as long)."""
-    tmp = tmp_path_factory.mktemp("sharding")
-    procs = [_launch(tmp, 2, "1,2", "2"), _launch(tmp, 4, "4", "1,4")]
+def _collect(procs: list[tuple[subprocess.Popen[str], Path]]) -> dict[str, Any]:
     arrays: dict[str, np.ndarray] = {}
     checks: dict[str, Any] = {}
     for proc, out in procs:
@@ -124,6 +141,38 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     return {"arrays": arrays, "checks": checks}
 
 
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Both subprocesses, run in parallel: arrays and checks of meshes 1, 2 and 4 (each
+    compile split so the two take about as long)."""
+    tmp = tmp_path_factory.mktemp("sharding")
+    return _collect([_launch(tmp, 2, [1, 2], [2]), _launch(tmp, 4, [4], [1, 4])])
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """One subprocess with 2 devices: a 4-env rollout of 12 steps on meshes of 1 and 2."""
+    tmp = tmp_path_factory.mktemp("sharding_smoke")
+    launched = _launch(tmp, 2, [1, 2], [], env_id="CartpoleStayUp-v0", num_envs=4, steps=12)
+    return _collect([launched])
+
+
+def test_two_device_rollout_smoke(smoke: dict[str, Any]) -> None:
+    """The sharded rollout on 2 devices equals the one-device one, crosses episode ends,
+    stays split; an uneven batch is refused naming both numbers."""
+    a, c = smoke["arrays"], smoke["checks"]
+    for name in ("rewards", "obs", "qpos"):
+        np.testing.assert_allclose(a[f"rollout2_{name}"], a[f"rollout1_{name}"], atol=ROLLOUT_TOL)
+    np.testing.assert_array_equal(a["rollout2_time"], a["rollout1_time"])
+    assert a["rollout1_time"].max() < 10 and np.abs(a["rollout1_rewards"]).sum() > 0
+    for n in (1, 2):
+        assert c[f"rollout{n}_split"] and c[f"rollout{n}_rewards_split"]
+        assert c[f"rollout{n}_devices"] == n
+    assert "num_envs=7" in c["uneven_error"] and "2 devices" in c["uneven_error"]
+
+
+# ------------------------------------------------------------------- full tier: 1, 2, 4
+@pytest.mark.full
 @pytest.mark.parametrize("n", [2, 4])
 def test_sharded_rollout_matches_one_device(runs: dict[str, Any], n: int) -> None:
     a = runs["arrays"]
@@ -137,6 +186,7 @@ def test_sharded_rollout_matches_one_device(runs: dict[str, Any], n: int) -> Non
     assert np.abs(a["rollout1_rewards"]).sum() > 0
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("n", [1, 2, 4])
 def test_sharded_rollout_outputs_stay_sharded(runs: dict[str, Any], n: int) -> None:
     c = runs["checks"]
@@ -145,6 +195,7 @@ def test_sharded_rollout_outputs_stay_sharded(runs: dict[str, Any], n: int) -> N
     assert c[f"rollout{n}_devices"] == n
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("n", [2, 4])
 def test_sharded_ppo_matches_one_device(runs: dict[str, Any], n: int) -> None:
     a = runs["arrays"]
@@ -156,6 +207,7 @@ def test_sharded_ppo_matches_one_device(runs: dict[str, Any], n: int) -> None:
     np.testing.assert_allclose(a[f"ppo{n}_obs"], a["ppo1_obs"], atol=PPO_TOL, rtol=0)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("n", [1, 2, 4])
 def test_sharded_ppo_state_layout(runs: dict[str, Any], n: int) -> None:
     c = runs["checks"]
@@ -163,6 +215,7 @@ def test_sharded_ppo_state_layout(runs: dict[str, Any], n: int) -> None:
     assert c[f"ppo{n}_params_replicated"], "network params must be replicated"
 
 
+@pytest.mark.full
 def test_uneven_batch_error_names_both_numbers(runs: dict[str, Any]) -> None:
     msg = runs["checks"]["uneven_error"]
     assert "num_envs=7" in msg and "2 devices" in msg

@@ -114,7 +114,7 @@ def test_continuous_task_is_refused():
 def _train(env, cfg, chunks, seed=0):
     trainer = T.make_trainer(env, cfg)
     chunk = jax.jit(trainer.chunk)
-    state = trainer.init(jax.random.key(seed))
+    state = jax.jit(trainer.init)(jax.random.key(seed))
     metrics = []
     for _ in range(chunks):
         state, m = chunk(state)
@@ -175,6 +175,7 @@ def test_learns_the_chain(cls):
 
 
 # ------------------------------------------------------------ the real task, one compile
+@pytest.mark.full  # training to a threshold; the learning itself: test_learns_the_chain
 def test_short_cartpole_run_improves_over_random():
     env = jaxenvs.make("CartPole-v0")
     cfg = T.QLearningConfig(

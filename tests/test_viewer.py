@@ -1,9 +1,10 @@
 """The interactive viewer: ``jaxenvs view`` and the facade's ``render_mode="human"``.
 
 Unmarked tests need no display: the one-line refusal, the slider/action mapping and the
-viewer loop driven through a stand-in for MuJoCo's window. Tests marked ``viewer`` open
-real windows under a virtual X display (Xvfb: ``apt-get install -y xvfb``) and check a
-screenshot: ``python -m pytest -m viewer``.
+viewer loop driven through a stand-in for MuJoCo's window (stepping the pendulum with the
+engine for task logic, tests/engines.py). Tests marked ``viewer`` open real windows under a
+virtual X display (Xvfb: ``apt-get install -y xvfb``) and check a screenshot:
+``python -m pytest -m viewer``.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import gymnasium
 import jax
 import numpy as np
 import pytest
+from engines import TASK_LOGIC
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "pendulum"
 sys.path.insert(0, str(EXAMPLE))
@@ -110,7 +112,7 @@ def _run_fake(mode: str, sliders: float | None, steps: int, **kw: Any) -> FakeHa
             data.ctrl[:] = sliders
         return handles[0]
 
-    pend = jaxenvs.make(ID, init_velocity=0.0, **kw)
+    pend = jaxenvs.make(ID, init_velocity=0.0, physics=TASK_LOGIC, **kw)
     player = viewer.view(pend, mode, steps=steps + 5, realtime=False, launch=launch)
     (handle,) = handles
     assert handle.closed and handle.syncs == steps  # stopped when the window closed
@@ -138,7 +140,7 @@ def test_policy_mode_plays_act_fn() -> None:
     def act_fn(obs: jax.Array, key: jax.Array) -> jax.Array:
         return jax.numpy.full((1,), 0.5)
 
-    pend = jaxenvs.make(ID)
+    pend = jaxenvs.make(ID, physics=TASK_LOGIC)
     handles: list[FakeHandle] = []
 
     def launch(model: Any, data: Any) -> FakeHandle:
