@@ -147,7 +147,7 @@ def test_tutorial_listings_are_the_example_files() -> None:
 def test_bench_from_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:
     argv = [
         "bench", "--tasks", CLI_ID, "--batches", "2", "--modes", "full",
-        "--steps", "5", "--repeats", "1", "--target-s", "0.01",
+        "--steps", "5", "--repeats", "1", "--target-s", "0.01", "--physics", TASK_LOGIC,
     ]  # fmt: skip
     assert main(argv) == 0
     out = capsys.readouterr().out
