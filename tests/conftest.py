@@ -13,7 +13,9 @@ for the built-in tasks: tests of task logic use it, tests of MJX itself say
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import tempfile
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -22,6 +24,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 # one persistent compile cache for the whole test session, in a fresh directory (never
 # ~/.cache): modules that build the same programs (an env's step, a trainer's chunk)
 # compile them once per session. Command-line tests that switch the cache on use it too.
+# Under pytest-xdist every worker process has its own (JAX's file cache is not safe to
+# write from two processes at once), removed when its process ends.
 os.environ["JAXENVS_CACHE_DIR"] = tempfile.mkdtemp(prefix="jaxenvs-test-cache-")
 
 import jax
@@ -33,6 +37,7 @@ from jaxenvs.core import BatchedEnv
 from jaxenvs.testing import TaskChecker
 
 _SESSION_CACHE = os.environ["JAXENVS_CACHE_DIR"]
+atexit.register(shutil.rmtree, _SESSION_CACHE, ignore_errors=True)
 _CHECKERS: dict[tuple[str, str], TaskChecker] = {}
 _BATCHED: dict[tuple[Any, ...], Batched] = {}
 
@@ -89,3 +94,9 @@ def _program_store_stays_off():
     if compile_cache.active() is not None:
         compile_cache.disable()
         _session_compile_cache()
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
+    """``-n auto`` (the default, see pyproject.toml): one test process per usable core, at
+    most 8 (each holds its own compiled programs, about 1-2 GB)."""
+    return max(1, min(8, len(os.sched_getaffinity(0))))

@@ -11,45 +11,40 @@ from jaxenvs import bench
 from jaxenvs.cli import main
 
 
-@pytest.fixture(scope="module")
-def bench_json(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    path = tmp_path_factory.mktemp("bench") / "bench.json"
-    code = main(
-        [
-            "bench",
-            "--tasks",
-            "CartPole-v0",
-            "--batches",
-            "2",
-            "--modes",
-            "full",
-            "--steps",
-            "5",
-            "--repeats",
-            "2",
-            "--target-s",
-            "0.01",
-            "--json",
-            str(path),
-        ]
-    )
-    assert code == 0
+def _bench(path, *extra: str) -> dict:
+    args = ["--tasks", "CartPole-v0", "--batches", "2", "--modes", "full", "--steps", "5"]
+    args += ["--repeats", "2", "--target-s", "0.01", "--json", str(path), *extra]
+    assert main(["bench", *args]) == 0
     return json.loads(path.read_text())
 
 
-def test_bench_writes_valid_json(bench_json: dict) -> None:
-    # on a CPU both engines are timed, in the same rounds
-    results = {r["physics"]: r for r in bench_json["results"]}
-    assert sorted(results) == ["c", "mjx"] and len(bench_json["results"]) == 2
+def _check_result(res: dict) -> None:
+    assert res["name"] == "jaxenvs" and res["task"] == "CartPole-v0"
+    assert res["num_envs"] == 2 and res["variant"] == "full"
+    assert res["env_steps_per_s"] > 0
+    assert res["min_env_steps_per_s"] <= res["env_steps_per_s"] <= res["max_env_steps_per_s"]
+    assert res["first_call_s"] >= res["compile_s"] > 0
+
+
+def test_bench_writes_valid_json(tmp_path) -> None:
+    """One engine (C: no physics to compile); the full tier times both side by side."""
+    out = _bench(tmp_path / "bench.json", "--physics", "c")
+    (res,) = out["results"]
+    _check_result(res)
+    assert res["physics"] == "c" and res["threads"] >= 1
+    assert out["machine"]["backend"] == "cpu"
+    assert out["ratios"] == []
+
+
+@pytest.mark.full  # compiles the MJX rollout as well: the full tier
+def test_bench_times_both_engines_by_default_on_a_cpu(tmp_path) -> None:
+    out = _bench(tmp_path / "bench.json")
+    results = {r["physics"]: r for r in out["results"]}
+    assert sorted(results) == ["c", "mjx"] and len(out["results"]) == 2
     for res in results.values():
-        assert res["name"] == "jaxenvs" and res["task"] == "CartPole-v0"
-        assert res["num_envs"] == 2 and res["variant"] == "full"
-        assert res["env_steps_per_s"] > 0
-        assert res["min_env_steps_per_s"] <= res["env_steps_per_s"] <= res["max_env_steps_per_s"]
-        assert res["first_call_s"] >= res["compile_s"] > 0
+        _check_result(res)
     assert results["c"]["threads"] >= 1
-    assert bench_json["machine"]["backend"] == "cpu"
-    assert bench_json["ratios"] == []
+    assert out["ratios"] == []
 
 
 def test_missing_peer_is_reported_skipped(monkeypatch: pytest.MonkeyPatch) -> None:

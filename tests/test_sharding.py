@@ -6,9 +6,10 @@ Each writes its results to an ``.npz``; this module compares them. MJX, because 
 programs are what the compiler partitions over the devices (the C engine's host callback
 runs on one device whatever the mesh).
 
-* Default tier, a smoke test (``smoke``): one process with 2 devices, 4 envs of
+* Default tier: the mesh, placement and argument checks that need no second device.
+* Full tier, a smoke test (``smoke``): one process with 2 devices, 4 envs of
   CartpoleStayUp-v0 (no scan unrolling: the cheapest MJX rollout to compile), a rollout on
-  meshes of 1 and 2 devices; about 20 s on two cores.
+  meshes of 1 and 2 devices; about 11 s on two cores.
 * Full tier (``runs``): one process with 2 devices and one with 4, run side by side,
   between them covering meshes of 1, 2 and 4 devices for both the rollout and PPO on
   CartpoleBalance-v0. On two idle cores that takes about 1.5 min (each subprocess spends
@@ -157,6 +158,7 @@ def smoke(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     return _collect([launched])
 
 
+@pytest.mark.full  # a 2-device subprocess compiling MJX (~11 s on 2 cores): the full tier
 def test_two_device_rollout_smoke(smoke: dict[str, Any]) -> None:
     """The sharded rollout on 2 devices equals the one-device one, crosses episode ends,
     stays split; an uneven batch is refused naming both numbers."""
