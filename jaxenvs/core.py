@@ -541,13 +541,7 @@ class BatchedEnv:
                 (nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
             )
             obs, extras, time, key, new_params = merged
-            # the sim knows which fields its engine carries (a duck-typed sim: all of them)
-            select = getattr(self.env.sim, "select_data", None)
-            data = (
-                select(pick, fresh.data, nxt.data)
-                if select is not None
-                else jax.tree.map(pick, fresh.data, nxt.data)
-            )
+            data = self.env.sim.select_data(pick, fresh.data, nxt.data)
             info = dict(nxt.info)
             info["episode_return"] = jnp.where(done, 0.0, nxt.info["episode_return"])
             info["episode_length"] = jnp.where(done, 0, nxt.info["episode_length"])

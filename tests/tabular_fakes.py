@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import jax
 import jax.numpy as jnp
@@ -26,14 +26,19 @@ from jaxenvs.core import Env, TaskConfig
 
 
 class FakeSim:
-    """What a task needs of its sim when there is no physics: a control period and an
-    engine to be stepped by (any engine steps nothing the same way)."""
+    """What a task needs of its sim when there is no physics: a control period, an engine
+    to be stepped by (any engine steps nothing the same way) and the auto-reset's merge."""
 
     physics = "mjx"
     control_dt = 0.02
 
     def with_physics(self, physics: str, threads: int | None = None) -> FakeSim:
         return self
+
+    def select_data(
+        self, pick: Callable[[jax.Array, jax.Array], jax.Array], new: FakeData, old: FakeData
+    ) -> FakeData:
+        return jax.tree.map(pick, new, old)  # every field, as jaxenvs.sim.Sim does
 
 
 class FakeData(struct.PyTreeNode):
