@@ -1,136 +1,300 @@
 """MuJoCo's C engine behind the functional API (``physics="c"``), for CPUs.
 
 A task's ``reset``/``step`` stay the same pure JAX functions over an ``mjx.Data``; only the
-physics step changes. Each control step is one :func:`jax.pure_callback` that hands the
-batch's physics state to :class:`mujoco.rollout.Rollout` (MuJoCo's own thread pool, one
-``mj_step`` per substep, float64) and writes the result back into the ``mjx.Data``. From
-JAX's side it is a pure function: ``jit``, ``vmap`` (nested too: the callback sees every
-batch axis at once), ``lax.scan`` and the auto-reset work, and the same inputs give the
-same outputs bit for bit whatever the thread count (each env is stepped on its own, from
-a state that holds everything ``mj_step`` reads).
+physics step changes. Each control step is one call out of the compiled program into
+MuJoCo's batched C API (``mujoco/mjbatch.h``): every env of the batch is stepped on its own
+from the full state it holds (``mj_step`` per substep, float64), on a pool of threads in
+native code. From JAX's side it is a pure function: ``jit``, nested ``vmap`` (the call sees
+every batch axis at once), ``lax.scan``, the auto-reset, sharding and domain randomisation
+work, and the same inputs give the same outputs bit for bit at any thread count.
 
-What a step writes (:data:`WRITTEN`): ``time``, ``qpos``, ``qvel``, ``act`` and
-``actuator_force`` (read back through one ``actuatorfrc`` sensor per actuator that only
-the C model has), with the values MuJoCo computes for the same step as ``mjx.step``
-(within float32/float64 rounding). What it reads (:data:`READ`): those, ``ctrl`` and the
-mocap poses. Every other floating-point field of the state is NaN under this engine, so
-a task that reads one (a site position, a contact force) fails its engine-parity test
-loudly instead of reading a stale value (``tests/test_cengine.py`` walks every task).
+**Two paths, one result.** The call is the native engine (:mod:`jaxenvs.native`: an XLA FFI
+custom call, no Python and no GIL per step, and nothing process-specific in the compiled
+program, which names the model by a digest of its content, so programs go into JAX's
+persistent cache) when it was built and loads; otherwise a ``jax.pure_callback`` into
+``mujoco.batch.Batch``, with the same outputs (tested) at a higher cost per call.
+:func:`path` says which one runs and why.
 
-An env whose state is non-finite, or that MuJoCo resets because its state turned bad,
-comes back NaN, so the task's divergence check terminates it as under MJX.
+**Fields.** A step reads the state MJX's step reads (:data:`INPUTS`: ``time``, ``qpos``,
+``qvel``, ``act``, ``qacc_warmstart``, ``ctrl``, applied forces, ``eq_active``, mocap poses,
+``userdata``) and writes the state it advances (:data:`ADVANCED`) and every derived field
+``mjx.Data`` shares with MuJoCo's ``mjData`` (body, geom and site poses, centre-of-mass
+quantities, ``sensordata``, ``qacc``, actuator quantities, the mass matrix, ...), with MJX's
+convention: derived fields describe the state before the last substep. A field the step
+does not compute for this model (``qfrc_inverse``; ``cacc`` without a sensor that needs it)
+is 0, as in a fresh ``mjx.Data``. The contact and constraint arrays (``contact``, ``efc_*``),
+whose layouts differ between the engines, hold :class:`Unavailable`: reading one raises
+:class:`CEngineError` at trace time naming the field.
 
-The solver warm start (``qacc_warmstart``) is zero at the start of each control step and
-carried through its substeps (MuJoCo's rollout takes it in but does not hand it back).
+**Bad states.** MuJoCo resets a state whose positions, velocities or accelerations are
+non-finite or huge, with a warning, and carries on. Such an env (and one whose step raised
+a warning of a full constraint arena, a bad control, or an error) comes back with every
+field but ``time`` NaN, on any step, the first of an episode included, so the task's
+divergence check terminates it as under MJX.
 
-Params: a task's ``sim.model_with(fields)`` names model fields by their MuJoCo names
-(``body_mass``, ``actuator_gear``, ...). Under this engine the fields travel to the
-callback; unbatched ones are written into the one host model when they change, per-env
-ones (domain randomisation) into one model copy per env, only for the envs whose values
-changed since the last step (in practice: the envs that were just reset).
+**Params.** ``sim.model_with(fields)`` names model fields by their MuJoCo names
+(``body_mass``, ``actuator_gear``, ...). Their values travel with each call, per env, into
+per-simulation model fields of the batch: memory grows with threads, not with envs.
 """
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 import functools
-import threading
-from collections.abc import Mapping
+import warnings
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx, rollout
+from mujoco import mjx
+
+from jaxenvs import native
 
 _S = mujoco.mjtState
-FULLPHYSICS = int(_S.mjSTATE_FULLPHYSICS)
-CONTROL = int(_S.mjSTATE_CTRL | _S.mjSTATE_MOCAP_POS | _S.mjSTATE_MOCAP_QUAT)
+_W = mujoco.mjtWarning
 
-#: ``mjx.Data`` fields a C step writes.
-WRITTEN = ("time", "qpos", "qvel", "act", "actuator_force")
-#: ``mjx.Data`` fields a C step reads (and leaves as they are, unless also written).
-READ = ("time", "qpos", "qvel", "act", "ctrl", "mocap_pos", "mocap_quat")
-#: fields kept at MuJoCo's defaults (applied forces are zero in every task; the rest is
-#: empty for the models the C path accepts)
-KEPT = ("qfrc_applied", "xfrc_applied", "eq_active", "userdata", "history", "plugin_state")
-
+#: ``mjx.Data`` fields a C step reads
+INPUTS = (
+    "time",
+    "qpos",
+    "qvel",
+    "act",
+    "qacc_warmstart",
+    "ctrl",
+    "qfrc_applied",
+    "xfrc_applied",
+    "eq_active",
+    "mocap_pos",
+    "mocap_quat",
+    "userdata",
+)
+#: the state a C step advances (inputs that are also outputs)
+ADVANCED = ("time", "qpos", "qvel", "act", "qacc_warmstart")
+#: warnings that mark a step as failed (see the module docstring)
+BAD_WARNINGS = tuple(
+    int(w)
+    for w in (
+        _W.mjWARN_CONTACTFULL,
+        _W.mjWARN_CNSTRFULL,
+        _W.mjWARN_BADQPOS,
+        _W.mjWARN_BADQVEL,
+        _W.mjWARN_BADQACC,
+        _W.mjWARN_BADCTRL,
+    )
+)
 #: below this many (envs x substeps x dofs) a batch is stepped on the calling thread
 SERIAL_WORK = 1024
 
-#: one batch at a time: an engine's scratch MjData and MuJoCo's thread pools are shared by
-#: every caller (e.g. the callbacks of several devices running at once)
-_POOL_LOCK = threading.Lock()
-
 
 class CEngineError(ValueError):
-    """A model or a params field the C engine cannot step."""
+    """A model, a params field or a state field the C engine cannot step or provide."""
 
 
-def with_force_sensors(spec: mujoco.MjSpec) -> tuple[mujoco.MjModel, int]:
-    """Compile ``spec`` with one ``actuatorfrc`` sensor per actuator appended; returns the
-    model and the offset of the first such value in ``sensordata``."""
-    model = spec.compile()
-    offset = model.nsensordata
-    for i, actuator in enumerate(spec.actuators):
-        if not actuator.name:
-            actuator.name = f"jaxenvs_actuator_{i}"
-        spec.add_sensor(
-            type=mujoco.mjtSensor.mjSENS_ACTUATORFRC,
-            objtype=mujoco.mjtObj.mjOBJ_ACTUATOR,
-            objname=actuator.name,
+class Unavailable:
+    """Stands in for an ``mjx.Data`` field the C engine does not provide.
+
+    A pytree node with no leaves, so states holding it are jitted, vmapped, scanned and
+    merged as usual; any use of it as a value (an attribute, an index, arithmetic,
+    ``jnp.asarray``) raises :class:`CEngineError` naming the field.
+    """
+
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        object.__setattr__(self, "name", name)
+
+    def fail(self) -> Any:
+        raise CEngineError(
+            f"mjx.Data field {self.name!r} is not provided by physics='c' (MuJoCo C lays "
+            "out contacts and constraints differently from MJX): read it under "
+            "physics='mjx'"
         )
-    return (spec.compile() if spec.actuators else model), offset
+
+    def __getattr__(self, attr: str) -> Any:
+        if attr.startswith("__"):
+            raise AttributeError(attr)
+        return self.fail()
+
+    def __setattr__(self, attr: str, value: Any) -> None:
+        self.fail()
+
+    def __jax_array__(self) -> Any:
+        return self.fail()
+
+    def __array__(self, *args: Any, **kwargs: Any) -> Any:
+        return self.fail()
+
+    def __getitem__(self, key: Any) -> Any:
+        return self.fail()
+
+    def __bool__(self) -> bool:
+        return bool(self.fail())
+
+    def __len__(self) -> int:
+        return int(self.fail())
+
+    def __repr__(self) -> str:
+        return f"Unavailable({self.name!r}: not provided by physics='c')"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Unavailable) and other.name == self.name
+
+    def __hash__(self) -> int:
+        return hash(("jaxenvs.cengine.Unavailable", self.name))
 
 
-def nan_data(data: mjx.Data) -> mjx.Data:
-    """``data`` with every floating-point field outside READ, WRITTEN and KEPT set to NaN."""
-    keep = set(READ) | set(WRITTEN) | set(KEPT)
+def _fail_op(self: Unavailable, *args: Any) -> Any:
+    return self.fail()
 
-    def fill(path: Any, leaf: Any) -> Any:
-        name = getattr(path[0], "name", "")
-        if name in keep or not jnp.issubdtype(jnp.asarray(leaf).dtype, jnp.floating):
-            return leaf
-        return jnp.full_like(leaf, jnp.nan)
 
-    return jax.tree_util.tree_map_with_path(fill, data)
+for _op in ("add", "sub", "mul", "truediv", "floordiv", "pow", "matmul", "mod"):
+    setattr(Unavailable, f"__{_op}__", _fail_op)
+    setattr(Unavailable, f"__r{_op}__", _fail_op)
+for _op in ("neg", "pos", "abs", "lt", "le", "gt", "ge", "float", "int", "iter"):
+    setattr(Unavailable, f"__{_op}__", _fail_op)
+
+jax.tree_util.register_pytree_node(
+    Unavailable, lambda u: ((), u.name), lambda name, _: Unavailable(name)
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """Which ``mjx.Data`` fields a C step reads and writes, for one model.
+
+    Attributes:
+      inputs: non-empty :data:`INPUTS` fields, in call order.
+      outputs: ``(name, in_impl)`` of every field written (``in_impl``: a field of
+        ``data._impl``), :data:`ADVANCED` first.
+      unavailable: ``data._impl`` fields the C engine does not provide.
+      shapes: each input's and output's shape for one env.
+    """
+
+    inputs: tuple[str, ...]
+    outputs: tuple[tuple[str, bool], ...]
+    unavailable: tuple[str, ...]
+    shapes: Mapping[str, tuple[int, ...]]
+
+
+def layout(model: mujoco.MjModel, template: mjx.Data) -> Layout:
+    """The :class:`Layout` of ``model`` for an ``mjx.Data`` shaped like ``template``."""
+    c_data = mujoco.MjData(model)
+    inputs: list[str] = []
+    outputs: list[tuple[str, bool]] = [(n, False) for n in ADVANCED]
+    unavailable: list[str] = []
+    shapes: dict[str, tuple[int, ...]] = {}
+
+    def matches(name: str, leaf: Any) -> bool:
+        if name == "actuator_moment":  # MJX dense (nu, nv); MuJoCo compressed rows
+            return leaf.shape == (model.nu, model.nv)
+        value = getattr(c_data, name, None)
+        return (
+            isinstance(value, np.ndarray)
+            and value.dtype == np.float64
+            and value.size == np.size(leaf)
+            and jnp.issubdtype(leaf.dtype, jnp.floating)
+        )
+
+    for field in dataclasses.fields(template):
+        name = field.name
+        if name == "_impl":
+            continue
+        leaf = getattr(template, name)
+        shapes[name] = np.shape(leaf)
+        if name in INPUTS:
+            if np.size(leaf) or name == "time":
+                inputs.append(name)
+        elif name not in ADVANCED and np.size(leaf) and matches(name, leaf):
+            outputs.append((name, False))
+        elif np.size(leaf) and name not in ("history", "plugin_state"):
+            raise CEngineError(f"physics='c' has no value for mjx.Data field {name!r}")
+    impl = template._impl
+    for field in dataclasses.fields(impl):
+        name = field.name
+        leaf = getattr(impl, name)
+        if isinstance(leaf, int | float | np.integer):  # sizes (ncon, nefc, ...)
+            continue
+        if isinstance(leaf, jax.Array | np.ndarray):
+            shapes[name] = np.shape(leaf)
+            if not np.size(leaf):
+                continue
+            if matches(name, leaf):
+                outputs.append((name, True))
+                continue
+        unavailable.append(name)
+    return Layout(tuple(inputs), tuple(outputs), tuple(unavailable), shapes)
+
+
+def check_model(model: mujoco.MjModel) -> None:
+    """Raise :class:`CEngineError` for a model the C engine cannot step from an
+    ``mjx.Data`` (state it does not carry: history, plugin state, plasticity)."""
+    extra = {
+        "history": int(_S.mjSTATE_HISTORY),
+        "plugin state": int(_S.mjSTATE_PLUGIN),
+        "plastic state": int(_S.mjSTATE_PLASTIC),
+    }
+    held = [name for name, spec in extra.items() if mujoco.mj_stateSize(model, spec)]
+    if held:
+        raise CEngineError(f"physics='c' does not step models with {', '.join(held)}")
+
+
+@functools.lru_cache(maxsize=1)
+def _warn_fallback_once() -> None:
+    warnings.warn(
+        "jaxenvs: physics='c' steps through a Python callback, several times slower than "
+        f"the native engine: {native.unavailable_reason()}",
+        RuntimeWarning,
+        stacklevel=4,
+    )
+
+
+def path() -> str:
+    """``"native"`` or ``"callback"``: how a C step is called in this process."""
+    return "native" if native.available() else "callback"
 
 
 class CEngine:
     """Steps batches of one model in MuJoCo C from inside JAX programs.
 
     Args:
-      model: the host model to step (timestep and solver options already set), with the
-        actuator-force sensors of :func:`with_force_sensors`.
-      force_offset: where those sensors start in ``sensordata``.
-      threads: the rollout pool's size (``jaxenvs.machine.cpu_threads()``).
+      model: the host model to step (timestep, solver options and task edits applied).
+      template: an ``mjx.Data`` of the same model (shapes and dtypes of the state).
+      threads: the pool's size (``jaxenvs.machine.cpu_threads()``).
+      via: ``"native"`` or ``"callback"`` to force a path (tests compare them); default:
+        the native engine where it loads (:func:`path`).
     """
 
-    def __init__(self, model: mujoco.MjModel, force_offset: int, threads: int) -> None:
-        extra = {
-            "history": mujoco.mj_stateSize(model, int(_S.mjSTATE_HISTORY)),
-            "plugin state": mujoco.mj_stateSize(model, int(_S.mjSTATE_PLUGIN)),
-            "plastic state": mujoco.mj_stateSize(model, int(_S.mjSTATE_PLASTIC)),
-        }
-        held = [name for name, size in extra.items() if size]
-        if held:
-            raise CEngineError(f"physics='c' does not step models with {', '.join(held)}")
+    def __init__(
+        self, model: mujoco.MjModel, template: mjx.Data, threads: int, via: str | None = None
+    ) -> None:
+        check_model(model)
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.model = model
         self.threads = int(threads)
-        self.force_offset = force_offset
-        self.nstate = mujoco.mj_stateSize(model, FULLPHYSICS)
-        self._pool = rollout.Rollout(nthread=self.threads)
-        self._datas = [mujoco.MjData(model) for _ in range(self.threads)]
-        self._serial = rollout.Rollout(nthread=0)  # small batches: no thread hand-off
-        self._serial_data = [mujoco.MjData(model)]
-        self._shared: dict[str, np.ndarray] = {}  # float32 values written into self.model
-        self._copies: list[mujoco.MjModel] = []  # per-env models (domain randomisation)
-        self._copy_values: dict[str, np.ndarray] = {}
+        self.layout = layout(model, template)
+        #: ``"native"`` or ``"callback"``
+        self.path = via or path()
+        if self.path not in ("native", "callback"):
+            raise ValueError(f"via must be 'native' or 'callback', got {via!r}")
+        if self.path == "native":
+            self.key = native.register_model(model)
+            self._callback: _Callback | None = None
+        else:
+            if via is None:
+                _warn_fallback_once()
+            self.key = native.model_key(model)
+            self._callback = _Callback(model, self.threads, self.layout)
 
-    # ------------------------------------------------------------------ JAX side
+    def blank(self, data: mjx.Data) -> mjx.Data:
+        """``data`` with the fields this engine does not provide replaced by
+        :class:`Unavailable`."""
+        impl = data._impl.replace(**{n: Unavailable(n) for n in self.layout.unavailable})
+        return data.replace(_impl=impl)
+
     @functools.lru_cache(maxsize=64)  # noqa: B019 - one engine per Sim, kept for its life
     def field_shape(self, name: str) -> tuple[int, ...]:
         """Shape of model field ``name``; raises CEngineError naming an unknown one."""
@@ -145,156 +309,144 @@ class CEngine:
     def step(
         self, fields: Mapping[str, jax.Array], data: mjx.Data, ctrl: jax.Array, substeps: int
     ) -> mjx.Data:
-        """Hold ``ctrl`` for ``substeps`` C physics steps from ``data`` with ``fields``.
+        """Hold ``ctrl`` for ``substeps`` C physics steps from ``data`` with ``fields``."""
+        if substeps < 1:
+            raise ValueError(f"substeps must be >= 1, got {substeps}")
+        data = data.replace(ctrl=jnp.asarray(ctrl, data.ctrl.dtype))
+        return self._call(fields, data, int(substeps))
 
-        One callback a step, with one packed input (state, control, mocap poses), one
-        packed params vector and one packed output: a callback's cost grows with its
-        operand count (about 20 us each on the dev CPU, over a fixed ~85 us).
-        """
-        m = self.model
+    def forward(self, fields: Mapping[str, jax.Array], data: mjx.Data) -> mjx.Data:
+        """Every derived field at ``data``'s state (``mj_forward``); the state is kept."""
+        out = self._call(fields, data, 0)
+        return out.replace(**{n: getattr(data, n) for n in ADVANCED})
+
+    def _call(self, fields: Mapping[str, jax.Array], data: mjx.Data, substeps: int) -> mjx.Data:
+        lay = self.layout
         dtype = data.qpos.dtype
-        ctrl = jnp.asarray(ctrl, data.ctrl.dtype)
         names = tuple(sorted(fields))
-        values = []
+        params = []
         for name in names:
-            value = jnp.asarray(fields[name], jnp.float32)
+            value = jnp.asarray(fields[name], dtype)
             if value.shape != self.field_shape(name):
                 raise CEngineError(
                     f"physics='c': params field {name!r} has shape {value.shape}, the "
                     f"model's is {self.field_shape(name)}"
                 )
-            values.append(value.reshape(-1))
-        packed = jnp.concatenate(
-            [
-                data.time.astype(dtype)[None],
-                data.qpos,
-                data.qvel,
-                data.act.astype(dtype),
-                ctrl.astype(dtype),
-                data.mocap_pos.reshape(-1).astype(dtype),
-                data.mocap_quat.reshape(-1).astype(dtype),
-            ]
-        )
-        params = jnp.concatenate(values) if values else jnp.zeros((0,), jnp.float32)
-        sizes = (1, m.nq, m.nv, m.na, m.nu)
-        out = jax.ShapeDtypeStruct((sum(sizes),), dtype)
-        host = functools.partial(self._host_step, int(substeps), names)
-        result = jax.pure_callback(host, out, packed, params, vmap_method="expand_dims")
-        time, qpos, qvel, act, force = jnp.split(result, np.cumsum(sizes)[:-1])
-        return data.replace(
-            time=time[0].astype(data.time.dtype),
-            qpos=qpos,
-            qvel=qvel,
-            act=act.astype(data.act.dtype),
-            ctrl=ctrl,
-            actuator_force=force.astype(data.actuator_force.dtype),
-        )
-
-    # ------------------------------------------------------------------ host side
-    def _host_step(
-        self, substeps: int, names: tuple[str, ...], packed: np.ndarray, params: np.ndarray
-    ) -> np.ndarray:
-        m = self.model
-        packed, params = np.asarray(packed), np.asarray(params)
-        lead = np.broadcast_shapes(packed.shape[:-1], params.shape[:-1])
-        batch = int(np.prod(lead, dtype=np.int64))
-        if packed.shape[:-1] != lead:
-            packed = np.broadcast_to(packed, lead + packed.shape[-1:])
-        packed = packed.reshape(batch, -1)
-        nphys = 1 + m.nq + m.nv + m.na
-        state0 = np.zeros((batch, self.nstate))
-        state0[:, :nphys] = packed[:, :nphys]
-        control = np.empty((batch, substeps, packed.shape[1] - nphys))
-        control[:] = packed[:, None, nphys:]
-        models = self._models(names, params, lead, batch)
-        if not isinstance(models, list):
-            models = [models] * batch
-        state = np.empty((batch, substeps, self.nstate))
-        sensors = np.empty((batch, substeps, m.nsensordata))
-        # a few large jobs per thread (every env costs about the same); batches too small
-        # to repay the hand-off to the pool run on the calling thread
-        chunk = max(1, batch // (2 * self.threads))
-        serial = self.threads == 1 or batch * substeps * m.nv < SERIAL_WORK
-        pool, datas = (self._serial, self._serial_data) if serial else (self._pool, self._datas)
-        with _POOL_LOCK:
-            pool.rollout(
-                models,
-                datas,
-                state0,
-                control,
-                control_spec=CONTROL,
-                skip_checks=True,
-                nstep=substeps,
-                state=state,
-                sensordata=sensors,
-                chunk_size=chunk,
+            params.append(value)
+        args = [jnp.asarray(getattr(data, n)) for n in lay.inputs]
+        args = [a if a.dtype == jnp.bool_ else a.astype(dtype) for a in args]
+        impl = data._impl
+        shapes = [
+            jax.ShapeDtypeStruct(
+                np.shape(getattr(impl if in_impl else data, n)), _float(data, n, in_impl)
             )
-        force = sensors[:, -1, self.force_offset : self.force_offset + m.nu]
-        result = np.concatenate([state[:, -1, :nphys], force], axis=1).astype(packed.dtype)
-        result[self._was_reset(state0, state, substeps), 1 : 1 + m.nq + m.nv] = np.nan
-        return result.reshape(lead + result.shape[1:])
+            for n, in_impl in lay.outputs
+        ]
+        if self._callback is None:
+            call = jax.ffi.ffi_call(native.TARGET, shapes, vmap_method="broadcast_all")
+            results = call(
+                *args,
+                *params,
+                model=self.key,
+                substeps=np.int64(substeps),
+                threads=np.int64(self.threads),
+                serial_work=np.int64(SERIAL_WORK),
+                inputs=",".join(lay.inputs),
+                params=",".join(names),
+                outputs=",".join(n for n, _ in lay.outputs),
+            )
+        else:
+            host = functools.partial(self._callback, substeps, names)
+            results = jax.pure_callback(host, shapes, *args, *params, vmap_method="broadcast_all")
+        top = {n: r for (n, in_impl), r in zip(lay.outputs, results, strict=True) if not in_impl}
+        low = {n: r for (n, in_impl), r in zip(lay.outputs, results, strict=True) if in_impl}
+        return data.replace(_impl=impl.replace(**low), **top)
 
-    def _was_reset(self, state0: np.ndarray, state: np.ndarray, substeps: int) -> np.ndarray:
-        """Which envs MuJoCo reset during the step.
 
-        ``mj_step`` resets a state whose positions, velocities or accelerations are
-        non-finite or past ``mjMAXVAL`` to the model's defaults (time 0) and carries on,
-        with only a printed warning; MJX keeps stepping the bad state, and the task flags
-        it ``info["diverged"]``. Such envs are handed back with NaN positions and
-        velocities, so that they are flagged (and, batched, reset) under both engines.
-        A reset shows as a bad state going in, or as a clock that went back.
-        """
-        m = self.model
-        nq, nv = m.nq, m.nv
-        phys = state0[:, : 1 + nq + nv]
-        bad = ~np.all(np.isfinite(phys), axis=1) | np.any(np.abs(phys[:, 1:]) > mujoco.mjMAXVAL, 1)
-        dt = m.opt.timestep
-        expected = state0[:, :1] + dt * np.arange(1, substeps + 1)
-        return bad | np.any(state[:, :, 0] < expected - 0.5 * dt, axis=1)
+def _float(data: mjx.Data, name: str, in_impl: bool) -> Any:
+    leaf = getattr(data._impl if in_impl else data, name)
+    return jnp.asarray(leaf).dtype
 
-    def _models(
-        self, names: tuple[str, ...], params: np.ndarray, lead: tuple, batch: int
-    ) -> mujoco.MjModel | list[mujoco.MjModel]:
-        """The model(s) to step: the shared one, or one per env when params are per-env."""
-        shapes, bounds = self._layout(names)
-        if params.size == bounds[-1]:
-            flat = params.reshape(-1)
-            for i, (name, shape) in enumerate(zip(names, shapes, strict=True)):
-                value = flat[bounds[i] : bounds[i + 1]].reshape(shape)
-                known = self._shared.get(name)
-                if known is None:
-                    known = self._shared[name] = getattr(self.model, name).astype(np.float32)
-                if value.tobytes() != known.tobytes():
-                    getattr(self.model, name)[...] = value
-                    self._shared[name] = value.copy()
-            return self.model
-        self._grow(names, batch)
-        per_env = np.broadcast_to(params, lead + params.shape[-1:]).reshape(batch, -1)
-        for i, (name, shape) in enumerate(zip(names, shapes, strict=True)):
-            value = per_env[:, bounds[i] : bounds[i + 1]].reshape(batch, *shape)
-            known = self._copy_values[name][:batch]
-            changed = np.flatnonzero(np.any((value != known).reshape(batch, -1), axis=1))
-            for j in changed:
-                getattr(self._copies[j], name)[...] = value[j]
-            known[changed] = value[changed]
-        return self._copies[:batch]
 
-    @functools.lru_cache(maxsize=16)  # noqa: B019 - one engine per Sim, kept for its life
-    def _layout(self, names: tuple[str, ...]) -> tuple[list[tuple[int, ...]], list[int]]:
-        """Shapes of the packed params fields and their bounds in the packed vector."""
-        shapes = [self.field_shape(n) for n in names]
-        return shapes, [int(b) for b in np.cumsum([0] + [int(np.prod(sh)) for sh in shapes])]
+class _Callback:
+    """The callback path: the native engine's contract over ``mujoco.batch.Batch``.
 
-    def _grow(self, names: tuple[str, ...], batch: int) -> None:
-        have = len(self._copies)
-        if have >= batch and all(n in self._copy_values for n in names):
-            return
-        for _ in range(have, batch):
-            self._copies.append(copy.copy(self.model))
-        for name in names:
-            old = self._copy_values.get(name)
-            rows = [getattr(c, name).astype(np.float32) for c in self._copies]
-            new = np.stack(rows)
-            if old is not None:
-                new[: len(old)] = old
-            self._copy_values[name] = new
+    One persistent batch (an ``MjData`` per env) per batch size, so that every derived
+    field is the env's own, as in the native engine, which clears them before each step.
+    """
+
+    def __init__(self, model: mujoco.MjModel, threads: int, lay: Layout) -> None:
+        self.model = model
+        self.threads = threads
+        self.layout = lay
+        self._batches: dict[tuple[int, int], Any] = {}
+        self._expanded: dict[int, set[str]] = {}
+
+    def _batch(self, nsim: int, threads: int) -> Any:
+        from mujoco import batch
+
+        key = (nsim, threads)
+        if key not in self._batches:
+            self._batches[key] = batch.Batch(self.model, nsim, threads, persistent=True)
+            self._expanded[id(self._batches[key])] = set()
+        return self._batches[key]
+
+    def __call__(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
+        from mujoco import batch as batch_module
+
+        m, lay = self.model, self.layout
+        arrays_np = [np.asarray(a) for a in arrays]
+        ins, params = arrays_np[: len(lay.inputs)], arrays_np[len(lay.inputs) :]
+        qpos = ins[lay.inputs.index("qpos")]
+        lead = qpos.shape[: qpos.ndim - 1]
+        nsim = int(np.prod(lead, dtype=np.int64))
+        serial = self.threads == 1 or nsim * max(substeps, 1) * max(m.nv, 1) < SERIAL_WORK
+        b = self._batch(nsim, 1 if serial else self.threads)
+        for name, value in zip(lay.inputs, ins, strict=True):
+            view = b.bind(name)
+            view[...] = value.reshape(view.shape)
+        expanded = self._expanded[id(b)]
+        for name in expanded - set(names):
+            b.expand(name)[...] = getattr(m, name)
+        for name, value in zip(names, params, strict=True):
+            rows = b.expand(name)
+            rows[...] = value.reshape(rows.shape)
+            expanded.add(name)
+        time0 = b.bind("time").copy()
+        b.warning[:, list(BAD_WARNINGS), 1] = 1
+        try:
+            if substeps:
+                b.step(None, substeps)
+            else:
+                b.forward(None)
+        except batch_module.SimulationError:
+            pass
+        bad = (b.status != 0) | np.any(b.warning[:, list(BAD_WARNINGS), 1] != 1, axis=1)
+        out = []
+        for name, _ in lay.outputs:
+            if name == "actuator_moment":
+                value = _dense_moment(b, m)
+            else:
+                value = np.array(b.bind(name), dtype=np.float64)
+            flat = value.reshape(nsim, -1)
+            if name == "time":
+                flat[bad, 0] = time0[bad] + substeps * m.opt.timestep
+            else:
+                flat[bad] = np.nan
+            out.append(flat.reshape(lead + lay.shapes[name]).astype(qpos.dtype))
+        return out
+
+
+def _dense_moment(b: Any, m: mujoco.MjModel) -> np.ndarray:
+    """MuJoCo's compressed-row ``actuator_moment`` of each sim as MJX's dense (nu, nv)."""
+    nnz, adr = b.bind("moment_rownnz"), b.bind("moment_rowadr")
+    col, val = b.bind("moment_colind"), b.bind("actuator_moment")
+    dense = np.zeros((b.nsim, m.nu, m.nv))
+    for j in range(int(nnz.max(initial=0))):
+        valid = nnz > j
+        k = np.where(valid, adr + j, 0)
+        cols = np.take_along_axis(col, k, axis=1)
+        vals = np.take_along_axis(val, k, axis=1)
+        sims, acts = np.nonzero(valid)
+        dense[sims, acts, cols[valid]] = vals[valid]
+    return dense

@@ -109,7 +109,7 @@ class Sim:
     def init_data(self, qpos: jax.Array, qvel: jax.Array, **fields: jax.Array) -> mjx.Data:
         """A fresh ``mjx.Data`` with ``qpos``/``qvel`` (and e.g. ``mocap_pos``) set.
 
-        Kinematics are not recomputed here; call :func:`forward` when the observation
+        Kinematics are not recomputed here; call :meth:`forward` when the observation
         needs positions derived from ``qpos`` before the first step.
         """
         return self._data0.replace(qpos=qpos, qvel=qvel, **fields)
@@ -125,6 +125,11 @@ class Sim:
 
         data, _ = jax.lax.scan(body, data, None, length=self.substeps)
         return data
+
+    def forward(self, model: Any, data: mjx.Data) -> mjx.Data:
+        """Every derived field (positions, velocities, forces) at ``data``'s state, as
+        ``mjx.forward``; pass ``self.model_with(fields)`` as for :meth:`step`."""
+        return mjx.forward(model, data)
 
     def step_controlled(self, model: Any, data: mjx.Data, controller: Controller) -> mjx.Data:
         """One control step where ``controller(data) -> ctrl`` runs before every substep.
@@ -146,9 +151,10 @@ class CSim(Sim):
 
     Built from a :class:`Sim`: the same host model, timestep, substeps and edits, so ids,
     default params and rendering are unchanged. :meth:`model_with` returns the fields
-    themselves (the C engine writes them into its host model), :meth:`step` and
-    :meth:`step_controlled` call the C engine, and :meth:`init_data` starts from a state
-    whose fields the C engine does not compute are NaN (:func:`jaxenvs.cengine.nan_data`).
+    themselves (the C engine applies them per env), :meth:`step`, :meth:`step_controlled`
+    and :meth:`forward` call the C engine, and states hold
+    :class:`jaxenvs.cengine.Unavailable` where the C engine provides no value (the contact
+    and constraint arrays).
     """
 
     physics = "c"
@@ -163,13 +169,10 @@ class CSim(Sim):
                 "with JAX_PLATFORMS=cpu"
             )
         self.__dict__.update(base.__dict__)
-        spec = _lean_spec(self.xml)[1] if self.lean else mujoco.MjSpec.from_file(str(self.xml))
-        model, offset = cengine.with_force_sensors(spec)
-        model.opt.timestep = self.timestep
-        if self.edit is not None:
-            self.edit(model)
-        self.engine = cengine.CEngine(model, offset, threads or machine.cpu_threads())
-        self._data0 = cengine.nan_data(base._data0)
+        self.engine = cengine.CEngine(
+            base.physics_mj_model, base._data0, threads or machine.cpu_threads()
+        )
+        self._data0 = self.engine.blank(base._data0)
 
     def with_physics(self, physics: str, threads: int | None = None) -> Sim:
         if physics == "c" and (threads is None or threads == self.engine.threads):
@@ -177,18 +180,8 @@ class CSim(Sim):
         raise ValueError("build a C world from the MJX Sim it was made from")
 
     def model_with(self, fields: Mapping[str, jax.Array]) -> dict[str, jax.Array]:
-        """The params fields themselves; the C engine applies them on the host."""
+        """The params fields themselves; the C engine applies them per env."""
         return dict(fields)
-
-    def select_data(
-        self, pick: Callable[[jax.Array, jax.Array], jax.Array], new: mjx.Data, old: mjx.Data
-    ) -> mjx.Data:
-        """Only the fields the C engine reads or writes: the others are NaN in every state
-        (the walker's contact and constraint arrays were most of its auto-reset's work)."""
-        from jaxenvs import cengine
-
-        live = set(cengine.READ) | set(cengine.WRITTEN) | set(cengine.KEPT)
-        return old.replace(**{f: pick(getattr(new, f), getattr(old, f)) for f in live})
 
     def step(self, model: Any, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
         return self.engine.step(_fields(model), data, ctrl, self.substeps)
@@ -201,6 +194,9 @@ class CSim(Sim):
 
         data, _ = jax.lax.scan(body, data, None, length=self.substeps)
         return data
+
+    def forward(self, model: Any, data: mjx.Data) -> mjx.Data:
+        return self.engine.forward(_fields(model), data)
 
 
 def _fields(model: Any) -> Mapping[str, jax.Array]:
