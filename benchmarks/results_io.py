@@ -50,6 +50,8 @@ from typing import Any
 
 SCHEMA = 1
 RESULTS_DIR = Path(__file__).resolve().parent / "results"
+#: the help of the tools' --json option
+HELP = "write the result file here (a bare NAME: benchmarks/results/NAME.json)"
 REQUIRED = {
     "schema": int,
     "name": str,
@@ -174,7 +176,7 @@ def record(
         "machine": machine(description),
         "commit": commit(),
         "versions": versions(),
-        "command": " ".join(["python", *args]),
+        "command": " ".join(args if args and not args[0].endswith(".py") else ["python", *args]),
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
     if engine is not None:
@@ -242,3 +244,25 @@ def load(path: str | Path) -> dict[str, Any]:
 def load_all(results_dir: str | Path = RESULTS_DIR) -> dict[str, dict[str, Any]]:
     """Every result file of ``results_dir`` by name, each checked."""
     return {p.stem: load(p) for p in sorted(Path(results_dir).glob("*.json"))}
+
+
+def from_bench(raw: str | Path, name: str, title: str, command: str) -> dict[str, Any]:
+    """A result record from the JSON of ``jaxenvs bench --json RAW``, run just before on
+    this machine by ``command`` (the library's own format: its rows as they are)."""
+    import jax  # noqa: F401  (loaded, so that machine() reports the GPU)
+
+    d = json.loads(Path(raw).read_text())
+    extra = {k: v for k, v in d.items() if k != "results"}
+    return record(name, title, d["results"], extra=extra, argv=command.split())
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python benchmarks/results_io.py RAW.json NAME TITLE COMMAND``: wrap the output of
+    ``jaxenvs bench --json RAW.json`` (which the package writes in its own format) as
+    ``benchmarks/results/NAME.json``."""
+    raw, name, title, command = sys.argv[1:] if argv is None else argv
+    write(name, from_bench(raw, name, title, command))
+
+
+if __name__ == "__main__":
+    main()
