@@ -197,7 +197,17 @@ def ppo_cold_cpu2(recs: list[Rec]) -> Cells:
 
 def cross_engine(recs: list[Rec]) -> Cells:
     (rec,) = recs
-    cells = [["id", "trained on", "train wall", "env steps", "eval under MJX", "eval under C"]]
+    cells = [
+        [
+            "id",
+            "trained on",
+            "train wall",
+            "env steps",
+            "eval at the end of training",
+            "eval under MJX",
+            "eval under C",
+        ]
+    ]
     for r in rec["rows"]:
         cells.append(
             [
@@ -205,6 +215,7 @@ def cross_engine(recs: list[Rec]) -> Cells:
                 "C" if r["trained_physics"] == "c" else "MJX",
                 secs(r["train_wall_s"]),
                 f"{r['env_steps']:,}",
+                f"{r['train_eval_return']:.{2 if abs(r['train_eval_return']) < 100 else 1}f}",
                 ret(r["eval_mjx"], r["eval_mjx_std"]),
                 ret(r["eval_c"], r["eval_c_std"]),
             ]
