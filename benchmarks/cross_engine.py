@@ -6,7 +6,7 @@ For every shipped ``ppo_<ID>.yaml`` (or the ids given): ``jaxenvs train ID --alg
 trained on shows up as a gap between the two columns. Writes one JSON row per id.
 
     python benchmarks/cross_engine.py --ids CartPole-v0 Reacher-v0 --out runs/cross \\
-        --json benchmarks/cross_engine_cpu.json
+        --json cross_engine_ppo_cpu2
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ import json
 import time
 from pathlib import Path
 
-from jaxenvs import files
+import results_io
+
 from jaxenvs.agents import runner
 
 
@@ -25,7 +26,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--ids", nargs="+", default=None, help="env ids (default: CPU configs)")
     parser.add_argument("--out", default="runs/cross", help="where the run directories go")
     parser.add_argument("--episodes", type=int, default=20, help="eval episodes per seed")
-    parser.add_argument("--json", default=None, help="write the table here")
+    parser.add_argument("--json", default=None, help=results_io.HELP)
     args = parser.parse_args(argv)
     ids = args.ids or [
         "CartPole-v0",
@@ -54,8 +55,9 @@ def main(argv: list[str] | None = None) -> None:
             row[f"eval_{physics}_std"] = round(res["std_return"], 3)
         print(json.dumps(row), flush=True)
         rows.append(row)
-        if args.json:
-            files.write_text(args.json, json.dumps(rows, indent=2) + "\n")
+        if args.json:  # after every id, so that a long run keeps what it has
+            title = "PPO configs trained on the CPU default engine, evaluated under MJX and C"
+            results_io.write(args.json, results_io.record(args.json, title, rows))
 
 
 if __name__ == "__main__":

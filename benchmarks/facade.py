@@ -7,19 +7,19 @@ N, "vector_entry_point")`` against ``gymnasium.make_vec(PEER, N, "sync")``
 do in use. Rounds alternate ours and the peer so that machine noise hits both alike; the
 best round is reported (and all rounds in the JSON).
 
-    python benchmarks/facade.py --tasks CartPole-v0 Reacher-v0 --num-envs 1024 --json out.json
+    python benchmarks/facade.py --tasks CartPole-v0 Reacher-v0 --num-envs 1024 \\
+        --json facade_cpu2_cartpole_reacher
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import time
 from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
+import results_io
 
 import jaxenvs  # noqa: F401  (registers jaxenvs/<id>)
 
@@ -127,7 +127,7 @@ def main() -> None:
     parser.add_argument("--vec-steps", type=int, default=200, help="our vector steps per round")
     parser.add_argument("--peer-vec-steps", type=int, default=10, help="SyncVectorEnv steps")
     parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--json", help="write all rounds here")
+    parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
     results = []
     for env_id in args.tasks:
@@ -137,13 +137,29 @@ def main() -> None:
         report(res)
         results.append(res)
     if args.json:
-        import jax
+        title = f"the Gymnasium facade on {', '.join(args.tasks)} against Gymnasium's envs"
+        results_io.write(args.json, results_io.record(args.json, title, rows(results)))
 
-        meta = {"machine": platform.machine(), "python": platform.python_version()}
-        meta["jax"] = jax.__version__
-        meta["gymnasium"] = gym.__version__
-        with open(args.json, "w") as f:
-            json.dump({"meta": meta, "results": results}, f, indent=1)
+
+def rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One flat row per task, mode and contender, with the steps/s of every round."""
+    out = []
+    for r in results:
+        for mode in ("single", "vector"):
+            for who, rounds in r[mode].items():
+                ours = who.startswith("ours")
+                out.append(
+                    {
+                        "task": r["task"],
+                        "peer": r["peer"],
+                        "mode": mode,
+                        "who": who,
+                        "num_envs": 1 if mode == "single" else r["num_envs"],
+                        "steps_per_s_rounds": rounds,
+                        "first_call_s": r["first_call_s"][mode] if ours else None,
+                    }
+                )
+    return out
 
 
 if __name__ == "__main__":

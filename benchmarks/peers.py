@@ -6,14 +6,15 @@ our batched env over a batch sweep, then Gymnasium (one env, SyncVectorEnv), Env
 closed-form CartPole, all timed in the same interleaved rounds (medians). Peers that are
 not installed are listed as skipped. Ends with the targets, met or missed.
 
-    python benchmarks/peers.py --batches 256 2048 16384 --json benchmarks/peers.json
+    python benchmarks/peers.py --batches 256 2048 16384 --json peers_cpu2_cartpole_reacher
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from typing import Any
+
+import results_io
 
 import jaxenvs
 from jaxenvs import bench
@@ -82,7 +83,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--peer-envs", type=int, default=256)
-    parser.add_argument("--json", default=None)
+    parser.add_argument("--json", default=None, help=results_io.HELP)
     args = parser.parse_args(argv)
     ids = jaxenvs.list_envs()
     tasks = args.tasks or [t for t, *_ in TARGETS if t in ids]
@@ -108,9 +109,9 @@ def main(argv: list[str] | None = None) -> None:
     table = verdicts(results)
     print(bench.format_table(table))
     if args.json:
-        with open(args.json, "w") as f:
-            out = {"machine": bench.machine(), "results": results, "targets": table}
-            json.dump(out, f, indent=2)
+        title = f"{', '.join(tasks)} beside the peers"
+        extra = {"bench_machine": bench.machine(), "targets": table}
+        results_io.write(args.json, results_io.record(args.json, title, results, extra=extra))
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ For each task and each device count, all in one process:
   ``repeats`` timed chunks after the compile, plus the compile time.
 
     python benchmarks/scaling.py --tasks Reacher-v0 HexapodWalk-v0 --devices 1 2 \\
-        --json scaling.json
+        --json scaling_h200x2_reacher_walker
 
 On a CPU, add ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` to try the code path
 (the "devices" then share the same cores, so expect no speed-up).
@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import platform
 import statistics
 import time
 from typing import Any
 
 import jax
+import results_io
 
 import jaxenvs
 from jaxenvs import sharding
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--ppo-updates", type=int, default=4)
     parser.add_argument("--skip-ppo", action="store_true")
     parser.add_argument("--skip-env", action="store_true")
-    parser.add_argument("--json", default=None, help="write the results here")
+    parser.add_argument("--json", default=None, help=results_io.HELP)
     args = parser.parse_args(argv)
     devices = sorted(set(args.devices))
     for n in devices:
@@ -144,8 +144,9 @@ def main(argv: list[str] | None = None) -> None:
 
     def save() -> None:
         if args.json:
-            with open(args.json, "w") as f:
-                json.dump({"machine": machine, "args": vars(args), "results": results}, f, indent=2)
+            title = f"{', '.join(args.tasks)} on {devices} devices: env steps/s and PPO"
+            rec = results_io.record(args.json, title, results, extra={"args": vars(args)})
+            results_io.write(args.json, rec)
 
     def report(r: dict[str, Any]) -> None:
         results.append(r)

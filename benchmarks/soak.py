@@ -22,9 +22,6 @@ value reached an observation or a reward.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -33,6 +30,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+import results_io
 
 import jaxenvs
 from jaxenvs.core import BatchedEnv
@@ -156,14 +154,9 @@ def soak_task(
 
 
 def write_json(path: str, argv: list[str] | None, results: list[dict[str, Any]]) -> None:
-    meta = {
-        "command": " ".join(["benchmarks/soak.py", *(sys.argv[1:] if argv is None else argv)]),
-        "jax": jax.__version__,
-        "backend": jax.default_backend(),
-        "machine": platform.machine(),
-        "cpus": os.cpu_count(),
-    }
-    Path(path).write_text(json.dumps({"meta": meta, "results": results}, indent=1) + "\n")
+    args = ["benchmarks/soak.py", *(sys.argv[1:] if argv is None else argv)]
+    title = "env steps under random and extreme actions: non-finite values, divergence, memory"
+    results_io.write(path, results_io.record(path, title, results, argv=args))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -176,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--num-envs", type=int, default=128)
     p.add_argument("--block", type=int, default=200, help="env steps per env per compiled block")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", help="write the results as JSON here")
+    p.add_argument("--out", help=results_io.HELP)
     args = p.parse_args(argv)
     tasks = args.tasks or jaxenvs.list_envs()
     results = []

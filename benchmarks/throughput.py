@@ -5,13 +5,14 @@ measurement jits ``lax.scan`` over ``steps`` batched steps, times the first call
 (trace + compile + run) and the median of ``repeats`` further calls.
 
     python benchmarks/throughput.py --tasks CartPole-v0 --batches 256 4096 16384 \\
-        --modes full functional --json benchmarks/throughput.json
+        --modes full functional --json throughput_cpu2_cartpole
 """
 
 from __future__ import annotations
 
 import argparse
-import json
+
+import results_io
 
 from jaxenvs.bench import MODES, format_table, machine, measure
 
@@ -23,7 +24,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--modes", nargs="+", default=["full"], choices=MODES)
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--json", default=None, help="write the results here")
+    parser.add_argument("--json", default=None, help=results_io.HELP)
     args = parser.parse_args(argv)
     info = machine()
     print(f"# {info['host']} {info['device']} jax {info['jax']}")
@@ -47,8 +48,8 @@ def main(argv: list[str] | None = None) -> None:
                 print(" ".join(str(c) for c in rows[-1]), flush=True)
     print(format_table(rows))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"machine": info, "results": results}, f, indent=2)
+        title = f"env steps/s of {', '.join(args.tasks)} ({', '.join(args.modes)})"
+        results_io.write(args.json, results_io.record(args.json, title, results, extra=info))
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ threshold), checked after every chunk of training. Wall time counts everything f
 start of training (compilation included for ours, with the persistent compile cache off).
 Evaluation time is excluded for both (its clock is paused).
 
-    python benchmarks/training_speed.py --json benchmarks/training_speed.json
+    python benchmarks/training_speed.py --json training_speed_cpu2_cartpole
 
 Stable-Baselines3 needs torch: ``pip install torch`` from a CPU wheel index first, then
 ``pip install 'jaxenvs[bench-sb3]'``; without it that line is reported skipped.
@@ -22,6 +22,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import results_io
 
 import jaxenvs
 from jaxenvs.agents import base, ppo
@@ -163,7 +164,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--sb3-max-steps", type=int, default=300_000)
     parser.add_argument("--sb3-check-every", type=int, default=5_000)
-    parser.add_argument("--json", default=None)
+    parser.add_argument("--json", default=None, help=results_io.HELP)
     args = parser.parse_args(argv)
     results = []
     for seed in args.seeds:
@@ -178,10 +179,9 @@ def main(argv: list[str] | None = None) -> None:
     for r in results:
         print(json.dumps(r))
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(
-                {"machine": machine(), "config": str(our_config()), "results": results}, f, indent=2
-            )
+        title = "wall time to solved CartPole: our PPO against Stable-Baselines3 PPO"
+        extra = {"bench_machine": machine(), "config": str(our_config())}
+        results_io.write(args.json, results_io.record(args.json, title, results, extra=extra))
 
 
 if __name__ == "__main__":

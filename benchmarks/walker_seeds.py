@@ -23,7 +23,7 @@ of which change what the policy sees or does) are kept.
 
 ``eval`` writes its figures to ``RUN/walker_eval_mjx.json`` (or ``_c.json``); ``table``
 collects them, with each run's summary.json and config.yaml, into one record per run
-(``benchmarks/walker_seeds.json``); ``slim`` writes a run's greedy policy to
+(``benchmarks/results/ppo_walker_seeds_h200.json``); ``slim`` writes a run's greedy policy to
 ``RUN/policy.npz`` (about 1 MB), which ``eval`` reads where the full ``checkpoint.npz``
 (some 80 MB: it also holds the training envs' states) was not kept; ``render`` draws a
 trajectory saved by ``eval --trajectory`` as an animated GIF and a strip of frames, where
@@ -31,7 +31,7 @@ MuJoCo can render (``MUJOCO_GL=egl``).
 
     python benchmarks/walker_seeds.py eval RUN --trajectory RUN/walk.npz
     JAX_PLATFORMS=cpu python benchmarks/walker_seeds.py eval RUN --physics c
-    python benchmarks/walker_seeds.py table RUN0 RUN1 RUN2 --json benchmarks/walker_seeds.json
+    python benchmarks/walker_seeds.py table RUN0 RUN1 RUN2 --json ppo_walker_seeds_h200
     MUJOCO_GL=egl python benchmarks/walker_seeds.py render RUN/walk.npz \\
         --gif benchmarks/images/hexapod_walk.gif --strip benchmarks/images/hexapod_walk_frames.png
 """
@@ -48,6 +48,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+import results_io
 
 from jaxenvs.agents import checkpoint, runner
 from jaxenvs.tasks.hexapod import HexapodWalk, WalkConfig, quat_to_mat
@@ -300,7 +301,7 @@ def main(argv: list[str] | None = None) -> None:
     sl.add_argument("run_dir")
     tb = sub.add_parser("table", help="per-seed records of evaluated runs")
     tb.add_argument("run_dirs", nargs="+")
-    tb.add_argument("--json", metavar="OUT.json", required=True)
+    tb.add_argument("--json", metavar="NAME", required=True, help=results_io.HELP)
     rd = sub.add_parser("render", help="draw a saved trajectory")
     rd.add_argument("trajectory")
     rd.add_argument("--group", choices=GROUPS, default="default_near")
@@ -329,7 +330,11 @@ def main(argv: list[str] | None = None) -> None:
         print(f"policy: {slim(args.run_dir)}")
     elif args.command == "table":
         rows = table(args.run_dirs)
-        Path(args.json).write_text(json.dumps(rows, indent=2) + "\n")
+        title = "HexapodWalk-v0 PPO per seed: train wall, greedy speed, falls, targets reached"
+        rec = results_io.record(args.json, title, rows, engine="mjx; mujoco_c* fields under C")
+        gpus = sorted({r["gpu"] for r in rows})
+        rec["machine"] |= {"description": "where each run trained (its gpu field)", "gpu": gpus}
+        results_io.write(args.json, rec)
         print(json.dumps(rows, indent=2))
     else:
         render(args.trajectory, args.group, args.gif, args.strip)

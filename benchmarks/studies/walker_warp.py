@@ -8,7 +8,7 @@ standing start and the same random servo targets around the stance, stepped by
 physics and env steps/s (5 physics steps per env step), the first call, and whether the
 robots are still finite and standing at the end.
 
-    python3 benchmarks/walker_warp.py --batches 8192 65536 --impls jax warp
+    python3 benchmarks/studies/walker_warp.py --batches 8192 65536 --impls jax warp
 """
 
 from __future__ import annotations

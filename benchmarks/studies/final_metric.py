@@ -1,7 +1,7 @@
 """A task metric at the END of greedy episodes of a trained run (e.g. the one-leg task's
 final foot-tip distance), which ``summary.json`` (returns only) does not hold.
 
-    python benchmarks/final_metric.py runs/oneleg --metric distance --episodes 100
+    python benchmarks/studies/final_metric.py runs/oneleg --metric distance --episodes 100
 
 Runs ``--episodes`` greedy episodes of the run's best seed from fresh random starts for the
 full episode length (tasks without termination; an episode that terminates early keeps

@@ -5,7 +5,7 @@ Each variant is the full auto-resetting batched step with uniform random actions
 first, then timed in turn, round after round (median over rounds), so they share whatever
 the machine is doing. This is the measurement behind each task's ``scan_unroll``.
 
-    python benchmarks/unroll.py --task CartPole-v0 --batch 16384 --unrolls 1 4 5 8
+    python benchmarks/studies/unroll.py --task CartPole-v0 --batch 16384 --unrolls 1 4 5 8
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ and checked for what a solver change can break: the stance under zero action (to
 and joint speeds after 2 s) and divergence under random actions. Nothing here changes the
 shipped task; it measures what a change would buy before anyone retrains the policy.
 
-    python benchmarks/walker_solver.py --batches 256 --steps 20 --variants base sub3 cg4
-    python3 benchmarks/walker_solver.py --batches 65536 262144    # on a GPU (Newton too)
+    python benchmarks/studies/walker_solver.py --batches 256 --steps 20 --variants base sub3 cg4
+    python3 benchmarks/studies/walker_solver.py --batches 65536 262144    # on a GPU (Newton too)
 
 Newton calls LAPACK's batched Cholesky, which deadlocks XLA's CPU thread pool at >= 128
 envs on a 2-core machine (benchmarks/NOTES.md), so its variants refuse to run on CPU.

@@ -6,7 +6,7 @@ steps, and reports how many envs fell (the task's default termination) in each b
 the target's initial bearing in the body frame (0 = straight ahead, 180 = behind), with
 the peak roll, pitch and yaw rates of the envs that fell and of those that did not.
 
-    python benchmarks/walker_start_falls.py RUN --steps 40     # the first 2 s
+    python benchmarks/studies/walker_start_falls.py RUN --steps 40     # the first 2 s
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # benchmarks/
 import walker_seeds  # noqa: E402
 
 BANDS = (0, 45, 90, 135, 181)  # degrees of |bearing|
