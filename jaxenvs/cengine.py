@@ -85,8 +85,9 @@ BAD_WARNINGS = tuple(
         _W.mjWARN_BADCTRL,
     )
 )
-#: below this many (envs x substeps x dofs) a batch is stepped on the calling thread
-SERIAL_WORK = 1024
+#: below this many (envs x substeps x dofs) a batch is stepped on the calling thread (a
+#: hand-off to the pool costs about as much as 64 dof-steps of a small model)
+SERIAL_WORK = 64
 
 
 class CEngineError(ValueError):

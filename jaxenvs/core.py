@@ -56,6 +56,22 @@ Params = Any
 PHYSICS_CHOICES = ("auto", "mjx", "c")
 
 
+def cpu_auto(task: Any, num_envs: int | None, backend: str | None = None) -> str | None:
+    """What ``physics="auto"`` picks for a batch of ``num_envs`` of ``task`` (an :class:`Env`
+    subclass), or ``None`` where the task's single-env choice stands (not a CPU, no batch,
+    no measured cross-over).
+
+    On a CPU a task steps under ``cpu_physics`` up to ``cpu_mjx_from`` envs and under MJX
+    from there on: the batch size where MJX's steady-state throughput passed the C
+    engine's in ``benchmarks/engines_sweep.sh`` (RESULTS.md, "physics='auto'").
+    """
+    backend = backend or jax.default_backend()
+    threshold = getattr(task, "cpu_mjx_from", None)
+    if backend != "cpu" or num_envs is None or threshold is None:
+        return None
+    return "mjx" if num_envs >= threshold else None
+
+
 def resolve_physics(requested: str, cpu_default: str, backend: str | None = None) -> str:
     """The engine ``requested`` means on ``backend`` (default: JAX's default backend).
 
@@ -172,6 +188,10 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: benchmarks/RESULTS.md); the C engine fills only some ``mjx.Data`` fields
     #: (:data:`jaxenvs.cengine.WRITTEN`).
     cpu_physics: str = "mjx"
+
+    #: on a CPU, ``physics="auto"`` picks MJX for batches of at least this many envs
+    #: (:func:`cpu_auto`); ``None``: ``cpu_physics`` at every batch size.
+    cpu_mjx_from: int | None = None
 
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         requested = getattr(config, "physics", "auto")

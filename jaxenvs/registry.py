@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import Any
 
 from jaxenvs.config import ConfigError, apply_overrides
-from jaxenvs.core import BatchedEnv, Env, TaskConfig
+from jaxenvs.core import BatchedEnv, Env, TaskConfig, cpu_auto
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,7 +172,12 @@ def make(
         valid ones.
     """
     config = make_config(env_id, overrides)
-    env = spec(env_id).factory(config)
+    factory = spec(env_id).factory
+    if getattr(config, "physics", None) == "auto" and isinstance(num_envs, int):
+        picked = cpu_auto(factory, num_envs)
+        if picked is not None:
+            config = dataclasses.replace(config, physics=picked)
+    env = factory(config)
     if num_envs is None:
         if randomize or devices is not None:
             raise ConfigError("randomize and devices need num_envs (a batched env)")

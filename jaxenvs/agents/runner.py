@@ -45,7 +45,7 @@ from jaxenvs import compile_cache, files, machine, program_cache, registry, shar
 from jaxenvs.agents import checkpoint
 from jaxenvs.agents.base import CHUNK_METRICS, Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
-from jaxenvs.core import Env, batch_devices, resolve_physics
+from jaxenvs.core import Env, batch_devices, cpu_auto, resolve_physics
 
 PyTree = Any
 
@@ -69,6 +69,8 @@ ALGORITHMS: dict[str, AlgoEntry] = {
 SECTIONS = ("algo", "env", "agent", "train")
 CONFIG_FILE, PROGRESS_FILE, SUMMARY_FILE = "config.yaml", "progress.csv", "summary.json"
 CHECKPOINT_FILE, CURVE_FILE, VIDEO_FILE = "checkpoint.npz", "learning_curve.png", "video.mp4"
+#: the end-of-run video: frames per simulated second (at most) and (width, height)
+VIDEO_FPS, VIDEO_SIZE = 25.0, (400, 300)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -517,7 +519,10 @@ def _engine_resolved(resolved: ResolvedConfig) -> ResolvedConfig:
         return resolved
     factory = registry.spec(resolved.env_id).factory
     cpu_default = getattr(factory, "cpu_physics", None) if isinstance(factory, type) else None
-    if isinstance(cpu_default, str):
+    by_batch = cpu_auto(factory, getattr(resolved.train, "num_envs", None))
+    if by_batch is not None:
+        physics = by_batch
+    elif isinstance(cpu_default, str):
         physics = resolve_physics("auto", cpu_default)
     else:  # a factory function: build the env to see what it picked
         physics = factory(resolved.env).physics
@@ -790,9 +795,13 @@ def write_policy_video(
         say(f"no video: rendering is not available ({err})")
         return None
     try:
-        states = jax.tree.map(lambda x: np.asarray(x)[: length + 1], trajectory)
-        frames = render.render_frames(env, states)
-        render.write_video(frames, path, fps=min(1.0 / env.control_dt, 60.0))
+        # at most VIDEO_FPS frames a second of simulated time, at VIDEO_SIZE: on a CPU
+        # (software GL) each frame costs in proportion to its pixels
+        stride = max(1, round(1.0 / (env.control_dt * VIDEO_FPS)))
+        states = jax.tree.map(lambda x: np.asarray(x)[: length + 1 : stride], trajectory)
+        width, height = VIDEO_SIZE
+        frames = render.render_frames(env, states, width=width, height=height)
+        render.write_video(frames, path, fps=1.0 / (env.control_dt * stride))
     except Exception as err:  # noqa: BLE001 - the video is optional
         say(f"no video: {str(err).splitlines()[0] if str(err) else type(err).__name__}")
         return None

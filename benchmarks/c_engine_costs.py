@@ -1,0 +1,88 @@
+"""What the C engine costs beside its throughput: memory under domain randomisation and
+the first call.
+
+* ``memory``: peak resident memory above a bare ``import jaxenvs`` while 2048 randomised
+  walkers (``HexapodWalk-v0``, ``randomize=True``) step 20 times under ``physics="c"``,
+  each measured in a fresh process.
+* ``first_call``: seconds from ``jaxenvs.make(ID, num_envs=16, physics="c")`` to the end of
+  the first jitted reset and step, per task, in a fresh process each.
+
+    python benchmarks/c_engine_costs.py --json c_engine_costs_cpu2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+
+import results_io
+
+TASKS = (
+    "CartPole-v0",
+    "CartpoleStayUp-v0",
+    "CartpoleBalance-v0",
+    "CartpoleSwingup-v0",
+    "Reacher-v0",
+    "HexapodWalk-v0",
+    "HexapodOneLeg-v0",
+)
+
+_MEMORY = """
+import json, resource, jax, jax.numpy as jnp
+import jaxenvs
+def peak():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB
+base = peak()
+benv = jaxenvs.make("HexapodWalk-v0", num_envs={n}, randomize={r}, physics="c")
+step = jax.jit(benv.step)
+s = jax.jit(benv.reset)(jax.random.key(0))
+for _ in range(20):
+    s = step(s, jnp.zeros(({n}, 18)))
+jax.block_until_ready(s)
+print(json.dumps({{"envs": {n}, "randomize": {r}, "peak_mib_above_import": peak() - base,
+                  "path": benv.env.sim.engine.path}}))
+"""
+
+_FIRST = """
+import json, time, jax, jax.numpy as jnp
+import jaxenvs
+t = time.perf_counter()
+benv = jaxenvs.make({task!r}, num_envs=16, physics="c")
+env = benv.env
+a = jnp.zeros((16, *env.action_shape), jnp.int32 if env.discrete else jnp.float32)
+s = jax.jit(benv.step)(jax.jit(benv.reset)(jax.random.key(0)), a)
+jax.block_until_ready(s)
+print(json.dumps({{"task": {task!r}, "envs": 16, "first_call_s": time.perf_counter() - t}}))
+"""
+
+
+def _run(code: str) -> dict:
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=600
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--envs", type=int, default=2048)
+    parser.add_argument("--json", help=results_io.HELP)
+    args = parser.parse_args()
+    rows = []
+    for randomize in (False, True):
+        row = _run(_MEMORY.format(n=args.envs, r=randomize))
+        rows.append({"measure": "memory", **row})
+        print(row, flush=True)
+    for task in TASKS:
+        row = _run(_FIRST.format(task=task))
+        rows.append({"measure": "first_call", **row})
+        print(row, flush=True)
+    if args.json:
+        title = "C engine: memory of randomised walkers and first calls at 16 envs"
+        results_io.write(args.json, results_io.record(args.json, title, rows, engine="c"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The physics="auto" sweep: every task under both engines (and mujoco.rollout on our MJCF
+# beside them) at 1 to 16,384 envs, in one run; the figures behind the auto rule in
+# jaxenvs.core.CPU_AUTO and RESULTS.md's engine tables.
+#     bash benchmarks/engines_sweep.sh SUFFIX [TASK...]   e.g. cpu2, cpu16
+# writes benchmarks/results/engines_sweep_SUFFIX_<task>.json; raw output in $OUT (./out)
+set -uo pipefail
+suffix=$1
+shift
+tasks=("$@")
+[ ${#tasks[@]} -eq 0 ] && tasks=(CartPole-v0 Reacher-v0 HexapodWalk-v0)
+out="${OUT:-out}"
+here="$(cd "$(dirname "$0")" && pwd)"
+mkdir -p "$out"
+export JAX_PLATFORMS=cpu PYTHONUNBUFFERED=1
+for task in "${tasks[@]}"; do
+  steps=50
+  [ "$task" = HexapodWalk-v0 ] && steps=5
+  name="engines_sweep_${suffix}_$(echo "$task" | tr 'A-Z' 'a-z' | tr -d -)"
+  args=(--tasks "$task" --batches 1 16 256 4096 16384 --steps "$steps" --modes full --peers
+    --peer-envs 4096 --repeats 3 --target-s 0.5)
+  timeout 900 python3 -m jaxenvs bench "${args[@]}" --json "$out/$name.raw.json" 2>&1 \
+    | grep -v '^# round' | tee "$out/$name.txt"
+  python3 "$here/results_io.py" "$out/$name.raw.json" "$name" \
+    "$task under MJX and C at 1-16,384 envs beside mujoco.rollout ($suffix)" \
+    "JAX_PLATFORMS=cpu jaxenvs bench ${args[*]}"
+done
