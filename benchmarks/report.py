@@ -517,6 +517,81 @@ def scaling_ppo(recs: list[Rec]) -> Cells:
     return cells
 
 
+def engines_sweep(recs: list[Rec]) -> Cells:
+    """Both engines at each batch size, what physics='auto' picks there (the task's class
+    attribute ``cpu_mjx_from``, read from jaxenvs), and auto over the faster engine."""
+    import jaxenvs
+    from jaxenvs import registry
+    from jaxenvs.core import cpu_auto
+
+    cells = [
+        [
+            "task",
+            "envs",
+            "MJX",
+            "C",
+            "auto picks",
+            "auto / faster",
+            "MJX first call",
+            "C first call",
+        ]
+    ]
+    for rec in recs:
+        task = next(r["task"] for r in rec["rows"] if r.get("name") == "jaxenvs")
+        factory = registry.spec(task).factory
+        mjx, c = ours(rec, task, "mjx"), ours(rec, task, "c")
+        by_c = {r["num_envs"]: r for r in c}
+        for m in mjx:
+            n = m["num_envs"]
+            cr = by_c.get(n)
+            if cr is None:
+                continue
+            pick = cpu_auto(factory, n, backend="cpu") or getattr(factory, "cpu_physics", "mjx")
+            got = (m if pick == "mjx" else cr)["env_steps_per_s"]
+            fast = max(m["env_steps_per_s"], cr["env_steps_per_s"])
+            cells.append(
+                [
+                    task,
+                    f"{n:,}",
+                    rate(m["env_steps_per_s"]),
+                    rate(cr["env_steps_per_s"]),
+                    pick,
+                    f"{got / fast:.2f}" + ("" if got / fast >= 0.9 else " (**below 0.9**)"),
+                    secs(m["first_call_s"]),
+                    secs(cr["first_call_s"]),
+                ]
+            )
+        peer = [r for r in rec["rows"] if r.get("name") == "mujoco.rollout"]
+        for r in peer:
+            cells.append(
+                [
+                    task,
+                    f"{r['num_envs']:,}",
+                    "",
+                    "",
+                    "mujoco.rollout, our MJCF",
+                    rate(r["env_steps_per_s"]),
+                    "",
+                    "",
+                ]
+            )
+    del jaxenvs
+    return cells
+
+
+def c_costs(recs: list[Rec]) -> Cells:
+    (rec,) = recs
+    cells = [["measure", "what", "figure"]]
+    for r in rows(rec, measure="memory"):
+        what = f"{r['envs']:,} walkers, {'randomised' if r['randomize'] else 'default'} params"
+        cells.append(
+            ["peak RSS above `import jaxenvs`", what, f"{r['peak_mib_above_import']:.0f} MiB"]
+        )
+    for r in rows(rec, measure="first_call"):
+        cells.append(["first reset + step, 16 envs", r["task"], secs(r["first_call_s"])])
+    return cells
+
+
 def facade_c(recs: list[Rec]) -> Cells:
     (rec,) = recs
     cells = [["mode", "who", "envs", "steps/s (best of rounds)", "ours / peer", "first call"]]
@@ -748,6 +823,16 @@ TABLES: dict[str, Table] = {
     "scaling-env": Table(("scaling_h200x2_reacher_walker",), scaling_env),
     "scaling-ppo": Table(("scaling_h200x2_reacher_walker",), scaling_ppo),
     "facade-c": Table(("facade_cpu2_reacher_c",), facade_c),
+    "facade-native": Table(("facade_cpu2_native",), facade_c),
+    "engines-sweep-cpu16": Table(
+        (
+            "engines_sweep_cpu16_cartpolev0",
+            "engines_sweep_cpu16_reacherv0",
+            "engines_sweep_cpu16_hexapodwalkv0",
+        ),
+        engines_sweep,
+    ),
+    "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
     "peers-cpu2": Table(PEERS_CPU2, peers_cpu2),
     "gpu-h100": Table(
         ("throughput_h100_lean_vs_full_model", "throughput_h100_reacher_plain_step"), gpu_h100

@@ -70,7 +70,7 @@ SECTIONS = ("algo", "env", "agent", "train")
 CONFIG_FILE, PROGRESS_FILE, SUMMARY_FILE = "config.yaml", "progress.csv", "summary.json"
 CHECKPOINT_FILE, CURVE_FILE, VIDEO_FILE = "checkpoint.npz", "learning_curve.png", "video.mp4"
 #: the end-of-run video: frames per simulated second (at most) and (width, height)
-VIDEO_FPS, VIDEO_SIZE = 25.0, (400, 300)
+VIDEO_FPS, VIDEO_SIZE = 25.0, (640, 480)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -795,8 +795,7 @@ def write_policy_video(
         say(f"no video: rendering is not available ({err})")
         return None
     try:
-        # at most VIDEO_FPS frames a second of simulated time, at VIDEO_SIZE: on a CPU
-        # (software GL) each frame costs in proportion to its pixels
+        # at most VIDEO_FPS frames a second of simulated time
         stride = max(1, round(1.0 / (env.control_dt * VIDEO_FPS)))
         states = jax.tree.map(lambda x: np.asarray(x)[: length + 1 : stride], trajectory)
         width, height = VIDEO_SIZE

@@ -139,8 +139,10 @@ class CartPole(Env[CartPoleConfig]):
     * Timing: 0.02 s per step (MJX semi-implicit Euler, one 0.02 s substep).
     """
 
-    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
+    #: "physics='auto' on a CPU")
     cpu_physics = "c"
+    cpu_mjx_from = 4096
 
     scan_unroll = 5
 
@@ -261,8 +263,10 @@ class CartpoleStayUp(Env[StayUpConfig]):
     ``extras`` holds the commanded cart velocity.
     """
 
-    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
+    #: "physics='auto' on a CPU")
     cpu_physics = "c"
+    cpu_mjx_from = 4096
 
     metric_keys = ("command",)
 
@@ -363,8 +367,10 @@ class CartpoleBalance(Env[BalanceConfig]):
     * Timing: 0.01 s per step, one Euler substep.
     """
 
-    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
+    #: "physics='auto' on a CPU")
     cpu_physics = "c"
+    cpu_mjx_from = 4096
 
     scan_unroll = 5
 

@@ -179,8 +179,10 @@ class Reacher(Env[ReacherConfig]):
     ``extras`` is unused (the target lives in ``data.mocap_pos``).
     """
 
-    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
+    #: "physics='auto' on a CPU")
     cpu_physics = "c"
+    cpu_mjx_from = 4096
 
     metric_keys = ("distance", "ctrl_cost")
     #: 2: 1.05x the env steps/s of 1 at 16,384 envs on the 2-core CPU for 3.5 s more
