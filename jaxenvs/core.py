@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import warnings
 from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
@@ -47,6 +46,11 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
 from jaxenvs.config import require
+
+# re-exported for backward compatibility: device counting lives in jaxenvs.devices
+from jaxenvs.devices import ENV_AXIS as ENV_AXIS
+from jaxenvs.devices import batch_devices as batch_devices
+from jaxenvs.devices import divisible_devices as divisible_devices
 from jaxenvs.sim import Sim
 
 PyTree = Any
@@ -367,55 +371,6 @@ class Env(abc.ABC, Generic[ConfigT]):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.config})"
-
-
-#: name of the mesh axis an env batch is split over (see :mod:`jaxenvs.sharding`).
-ENV_AXIS = "envs"
-
-
-def divisible_devices(num_envs: int, available: int) -> int:
-    """The most devices, at most ``available``, that ``num_envs`` splits over evenly."""
-    return max(d for d in range(1, min(available, num_envs) + 1) if num_envs % d == 0)
-
-
-def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
-    """How many local devices a batch of ``num_envs`` envs is spread over.
-
-    ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
-    host devices, see :mod:`jaxenvs.machine`, or GPUs), or as many of them as
-    ``num_envs`` divides over evenly, with a warning when that is fewer; under the C
-    engine one (its own threads spread the batch). An explicit count must divide
-    ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.
-    """
-    available = jax.local_device_count()
-    if devices is None:
-        if physics == "c" or available == 1:
-            return 1
-        n = divisible_devices(num_envs, available)
-        if n < available and num_envs >= available:
-            lower = num_envs - num_envs % available
-            warnings.warn(
-                f"num_envs={num_envs} does not divide over the {available} local devices: "
-                f"spreading over {n} (a multiple of {available}, e.g. {lower} or "
-                f"{lower + available}, uses them all)",
-                stacklevel=3,
-            )
-        return n
-    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
-        raise ValueError(f"devices must be a positive integer, got {devices!r}")
-    if devices > available:
-        raise ValueError(
-            f"asked for {devices} devices but only {available} are available "
-            f"({jax.default_backend()}); on a CPU call jaxenvs.machine.use_cores first, or "
-            f"set XLA_FLAGS=--xla_force_host_platform_device_count={devices} before JAX starts"
-        )
-    if num_envs % devices:
-        lower = max(devices, num_envs - num_envs % devices)
-        raise ValueError(
-            f"num_envs={num_envs} does not divide evenly over {devices} devices: use a "
-            f"multiple of {devices} (e.g. {lower} or {lower + devices}), or fewer devices"
-        )
-    return devices
 
 
 class BatchedEnv:

@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+# re-exported for backward compatibility: random actions live in jaxenvs.actions
+from jaxenvs.actions import random_actions as random_actions
 from jaxenvs.core import STANDARD_INFO_KEYS, BatchedEnv, Env, State
 
 
@@ -30,13 +32,6 @@ class TaskCheckError(AssertionError):
 
 def _fail(name: str, message: str) -> None:
     raise TaskCheckError(f"[{name}] {message}")
-
-
-def random_actions(env: Env, key: jax.Array, batch: tuple[int, ...] = ()) -> jax.Array:
-    """Uniform random actions of the env's action space (batched by ``batch``)."""
-    if env.discrete:
-        return jax.random.randint(key, batch, 0, env.action_size)
-    return jax.random.uniform(key, (*batch, env.action_size), minval=-1.0, maxval=1.0)
 
 
 def _counting_jit(fn: Callable[..., Any]) -> tuple[Callable[..., Any], list[int]]:
