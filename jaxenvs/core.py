@@ -1,14 +1,27 @@
 """Core types: the env state, the task base class, and the batched auto-resetting env.
 
 A task is a pair of pure functions ``reset(key, params) -> State`` and
-``step(state, action, params) -> State``. Subclasses of :class:`Env` supply four hooks
-(the task layer) over a :class:`jaxenvs.sim.Sim` (the sim and robot layers):
+``step(state, action, params) -> State``. Subclasses of :class:`Env` supply hooks (the
+task layer) over a :class:`jaxenvs.sim.Sim` (the sim and robot layers):
 
 * ``_init(key, params) -> (data, extras)``: the initial-state distribution;
-* ``_act(data, extras, action, params) -> (data, extras)``: map a (sanitised) action
-  to controls and advance the physics one control step;
-* ``_observe(data, extras, params) -> obs``;
-* ``_reward(prev_data, data, action, extras, params) -> (reward, terminated, metrics)``.
+* ``_act(key, data, extras, action, params) -> (data, extras)``: map a (sanitised)
+  action to controls and advance the physics one control step; ``key`` is for action
+  noise or delay and pushes;
+* ``_observe(key, data, extras, params) -> obs``; ``key`` is for observation noise;
+* ``_reward(prev_data, data, action, extras, params) -> (reward, metrics)``;
+* ``_terminated(data, extras, params) -> bool`` (default: never).
+
+``extras`` is the task's own state (targets, commands, ...): a frozen
+:class:`flax.struct.PyTreeNode` of arrays whose structure is fixed per task
+(:class:`NoExtras` for tasks without one).
+
+**Keys.** ``reset`` splits its key once into (the state's next key, the init key, the
+observation key); ``step`` splits ``state.key`` once into (the next key, the act key,
+the observation key). Each hook gets its own subkey, used once; the first subkey becomes
+``state.key`` and drives every later step and auto-reset. A hook that does not draw
+random numbers ignores its key, and the task's trajectories are the same as if it had
+none.
 
 :class:`Env` adds what every task shares: action validation and sanitisation, episode
 counters, truncation at the episode length, divergence detection, and a fixed ``info``.
@@ -90,6 +103,10 @@ STANDARD_INFO_KEYS = (
 )
 
 
+class NoExtras(struct.PyTreeNode):
+    """The ``extras`` of a task that keeps no state of its own (no leaves)."""
+
+
 class State(struct.PyTreeNode):
     """The full state of one env (or of a batch, with a leading axis on every leaf).
 
@@ -100,7 +117,8 @@ class State(struct.PyTreeNode):
       terminated: the last transition reached a terminal state (no bootstrap).
       truncated: the episode hit its time limit (bootstrap from ``info["final_obs"]``).
       info: fixed dict of arrays, see the module docstring.
-      extras: task-specific state (targets, commanded velocities, ...).
+      extras: the task's own state (targets, commanded velocities, ...): a frozen
+        pytree of fixed structure per task, :class:`NoExtras` where there is none.
       time: int32 steps taken in the current episode.
       key: the PRNG key that drives this env's future randomness.
       params: per-env params of a randomised batched env, else ``None``.
@@ -239,15 +257,20 @@ class Env(abc.ABC, Generic[ConfigT]):
 
     # ----------------------------------------------------------------- task hooks
     @abc.abstractmethod
-    def _init(self, key: jax.Array, params: Params) -> tuple[mjx.Data, PyTree]: ...
+    def _init(self, key: jax.Array, params: Params) -> tuple[mjx.Data, PyTree]:
+        """The initial physics state and ``extras``, drawn from ``key``."""
 
     @abc.abstractmethod
     def _act(
-        self, data: mjx.Data, extras: PyTree, action: jax.Array, params: Params
-    ) -> tuple[mjx.Data, PyTree]: ...
+        self, key: jax.Array, data: mjx.Data, extras: PyTree, action: jax.Array, params: Params
+    ) -> tuple[mjx.Data, PyTree]:
+        """Apply the sanitised ``action`` for one control step; returns the new physics
+        state and ``extras`` (same structure and dtypes). ``key``: this step's act key."""
 
     @abc.abstractmethod
-    def _observe(self, data: mjx.Data, extras: PyTree, params: Params) -> jax.Array: ...
+    def _observe(self, key: jax.Array, data: mjx.Data, extras: PyTree, params: Params) -> jax.Array:
+        """The observation, shape ``(observation_size,)``. ``key``: this step's (or
+        reset's) observation key."""
 
     @abc.abstractmethod
     def _reward(
@@ -257,7 +280,14 @@ class Env(abc.ABC, Generic[ConfigT]):
         action: jax.Array,
         extras: PyTree,
         params: Params,
-    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]: ...
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
+        """The reward of the transition ``prev -> data`` under ``action`` and the task's
+        metrics (a dict with exactly the keys :attr:`metric_keys`)."""
+
+    def _terminated(self, data: mjx.Data, extras: PyTree, params: Params) -> jax.Array:
+        """True if ``data`` is a terminal state (no bootstrap). Default: never."""
+        del data, extras, params
+        return jnp.zeros((), bool)
 
     def _zero_metrics(self) -> dict[str, jax.Array]:
         return {k: jnp.zeros((), jnp.float32) for k in self.metric_keys}
@@ -266,9 +296,9 @@ class Env(abc.ABC, Generic[ConfigT]):
     def reset(self, key: jax.Array, params: Params = None) -> State:
         """Start an episode from the task's initial-state distribution."""
         params = self.default_params if params is None else params
-        key, init_key = jax.random.split(key)
+        key, init_key, obs_key = jax.random.split(key, 3)
         data, extras = self._init(init_key, params)
-        obs = self._observe(data, extras, params).astype(jnp.float32)
+        obs = self._observe(obs_key, data, extras, params).astype(jnp.float32)
         zero = jnp.zeros((), jnp.float32)
         info = {
             "episode_return": zero,
@@ -303,10 +333,11 @@ class Env(abc.ABC, Generic[ConfigT]):
         if params is None:
             params = self.default_params if state.params is None else state.params
         action, nan_count = self.sanitize_action(action)
-        key, _ = jax.random.split(state.key)
-        data, extras = self._act(state.data, state.extras, action, params)
-        reward, terminated, metrics = self._reward(state.data, data, action, extras, params)
-        obs = self._observe(data, extras, params).astype(jnp.float32)
+        key, act_key, obs_key = jax.random.split(state.key, 3)
+        data, extras = self._act(act_key, state.data, state.extras, action, params)
+        reward, metrics = self._reward(state.data, data, action, extras, params)
+        terminated = jnp.asarray(self._terminated(data, extras, params), bool)
+        obs = self._observe(obs_key, data, extras, params).astype(jnp.float32)
 
         bound = self.config.divergence_bound
         phys = jnp.concatenate([data.qpos, data.qvel])

@@ -35,6 +35,7 @@ from my_pendulum.task import Pendulum, PendulumConfig  # noqa: E402
 import jaxenvs  # noqa: E402
 from jaxenvs import registry  # noqa: E402
 from jaxenvs.cli import main  # noqa: E402
+from jaxenvs.core import NoExtras  # noqa: E402
 from jaxenvs.testing import TaskCheckError, check_task  # noqa: E402
 
 ID = "MyPendulum-v0"
@@ -169,8 +170,8 @@ class Retraces(Pendulum):
         data, _ = super()._init(key, params)
         return data, jnp.zeros((), jnp.int32)
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
-        data, _ = super()._act(data, None, action, params)
+    def _act(self, key, data, extras, action, params):  # type: ignore[no-untyped-def]
+        data, _ = super()._act(key, data, NoExtras(), action, params)
         return data, extras + 0.5
 
 

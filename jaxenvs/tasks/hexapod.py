@@ -46,7 +46,7 @@ from mujoco import mjx
 
 from jaxenvs import randomize
 from jaxenvs.config import require
-from jaxenvs.core import Env, TaskConfig
+from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots import robot_xml
 from jaxenvs.sim import Sim
@@ -268,7 +268,7 @@ class HexapodWalk(Env[WalkConfig]):
     def sample_params(self, key: jax.Array) -> HexapodParams:
         return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
-    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, None]:
+    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, NoExtras]:
         joint_key, yaw_key, dist_key, angle_key = jax.random.split(key, 4)
         c = self.config
         yaw = jax.random.uniform(yaw_key, minval=-math.pi, maxval=math.pi)
@@ -281,13 +281,22 @@ class HexapodWalk(Env[WalkConfig]):
         angle = jax.random.uniform(angle_key, minval=-math.pi, maxval=math.pi)
         target = jnp.stack([dist * jnp.cos(angle), dist * jnp.sin(angle), 0.01])[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24), mocap_pos=target)
-        return data, None
+        return data, NoExtras()
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: NoExtras,
+        action: jax.Array,
+        params: HexapodParams,
+    ) -> tuple[mjx.Data, NoExtras]:
         model = self.sim.model_with(params.model)
         return self.sim.step(model, data, servo_targets(action)), extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: HexapodParams
+    ) -> jax.Array:
         rot = quat_to_mat(data.qpos[3:7])
         to_target = data.mocap_pos[0, :2] - data.qpos[:2]
         to_target = to_target / jnp.maximum(jnp.linalg.norm(to_target), 1e-6)
@@ -304,7 +313,14 @@ class HexapodWalk(Env[WalkConfig]):
             ]
         )
 
-    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: NoExtras,
+        params: HexapodParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
         c = self.config
         target = data.mocap_pos[0, :2]
         d_prev = jnp.linalg.norm(target - prev.qpos[:2])
@@ -312,7 +328,6 @@ class HexapodWalk(Env[WalkConfig]):
         progress = (d_prev - dist) / self.control_dt
         energy = jnp.sum(jnp.abs(data.actuator_force * data.qvel[6:]))
         upright = quat_to_mat(data.qpos[3:7])[2, 2]
-        fallen = (data.qpos[2] < c.min_height) | (upright < c.min_upright)
         spin = jnp.sum(jnp.square(data.qvel[3:5]))  # free joint: body-frame rates
         reward = (
             c.progress_weight * progress
@@ -322,7 +337,13 @@ class HexapodWalk(Env[WalkConfig]):
             + c.alive_bonus
         )
         metrics = {"distance": dist, "progress": progress, "energy": energy}
-        return reward, fallen, metrics
+        return reward, metrics
+
+    def _terminated(self, data: mjx.Data, extras: NoExtras, params: HexapodParams) -> jax.Array:
+        """Fallen: the body below ``min_height`` or tilted past ``min_upright``."""
+        c = self.config
+        upright = quat_to_mat(data.qpos[3:7])[2, 2]
+        return (data.qpos[2] < c.min_height) | (upright < c.min_upright)
 
 
 # ------------------------------------------------------------------------ HexapodOneLeg-v0
@@ -347,6 +368,16 @@ class OneLegConfig(HexapodRandomization):
         require(self.init_joint_noise >= 0, "init_joint_noise", "must be >= 0")
 
 
+class OneLegExtras(struct.PyTreeNode):
+    """``HexapodOneLeg-v0``'s own state.
+
+    Attributes:
+      target_q: the target posture's joint angles (3, rad); the target is their foot tip.
+    """
+
+    target_q: jax.Array
+
+
 class HexapodOneLeg(Env[OneLegConfig]):
     """``HexapodOneLeg-v0``: one hexapod leg on a fixed base reaches for a target.
 
@@ -357,7 +388,7 @@ class HexapodOneLeg(Env[OneLegConfig]):
     * Termination: none. Truncation: 100 steps.
     * Start: joints uniform in +-0.1 rad, at rest. Target: joint angles drawn uniformly
       in ``target_fraction`` x each joint's half-range, mapped through forward kinematics,
-      so it is always reachable; ``extras`` keeps those angles.
+      so it is always reachable; ``extras`` (:class:`OneLegExtras`) keeps those angles.
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s; gravity on; no
       contacts or constraints.
     """
@@ -387,7 +418,7 @@ class HexapodOneLeg(Env[OneLegConfig]):
     def sample_params(self, key: jax.Array) -> HexapodParams:
         return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
-    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, jax.Array]:
+    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, OneLegExtras]:
         joint_key, target_key = jax.random.split(key)
         n = self.config.init_joint_noise
         qpos = jax.random.uniform(joint_key, (3,), minval=-n, maxval=n)
@@ -396,20 +427,36 @@ class HexapodOneLeg(Env[OneLegConfig]):
         target_q = fraction * JOINT_RANGE[:3]
         mocap = (leg_tip(target_q) + self._hip)[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(3), mocap_pos=mocap)
-        return data, target_q
+        return data, OneLegExtras(target_q=target_q)
 
     def target(self, data: mjx.Data) -> jax.Array:
         """The target in the hip's frame (m)."""
         return data.mocap_pos[0] - self._hip
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: OneLegExtras,
+        action: jax.Array,
+        params: HexapodParams,
+    ) -> tuple[mjx.Data, OneLegExtras]:
         model = self.sim.model_with(params.model)
         return self.sim.step(model, data, servo_targets(action)), extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: OneLegExtras, params: HexapodParams
+    ) -> jax.Array:
         return jnp.concatenate([data.qpos, data.qvel, self.target(data)])
 
-    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: OneLegExtras,
+        params: HexapodParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
         err = leg_tip(data.qpos) - self.target(data)
         sq = jnp.sum(err * err)
-        return -sq, jnp.zeros((), bool), {"distance": jnp.sqrt(sq)}
+        return -sq, {"distance": jnp.sqrt(sq)}

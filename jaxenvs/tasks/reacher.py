@@ -69,7 +69,7 @@ from mujoco import mjx
 
 from jaxenvs import randomize
 from jaxenvs.config import require
-from jaxenvs.core import Env, TaskConfig
+from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots import robot_xml
 from jaxenvs.sim import Sim
@@ -176,7 +176,7 @@ class Reacher(Env[ReacherConfig]):
     """``Reacher-v0``: put the fingertip of a 2-link planar arm on a random target.
 
     See the module docstring for the full spec (observation layout, reward, timing).
-    ``extras`` is unused (the target lives in ``data.mocap_pos``).
+    ``extras`` is :class:`~jaxenvs.core.NoExtras` (the target lives in ``data.mocap_pos``).
     """
 
     #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
@@ -243,7 +243,7 @@ class Reacher(Env[ReacherConfig]):
         phi = jax.random.uniform(angle_key, maxval=2 * math.pi)
         return jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi)])
 
-    def _init(self, key: jax.Array, params: ReacherParams) -> tuple[mjx.Data, None]:
+    def _init(self, key: jax.Array, params: ReacherParams) -> tuple[mjx.Data, NoExtras]:
         c = self.config
         angle_key, vel_key, target_key = jax.random.split(key, 3)
         qpos = jax.random.uniform(
@@ -254,11 +254,16 @@ class Reacher(Env[ReacherConfig]):
         )
         target = self.sample_target(target_key, params.target_radius)
         mocap = jnp.concatenate([target, jnp.full((1,), self._target_z)])[None]
-        return self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap), None
+        return self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap), NoExtras()
 
     def _act(
-        self, data: mjx.Data, extras: None, action: jax.Array, params: ReacherParams
-    ) -> tuple[mjx.Data, None]:
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: NoExtras,
+        action: jax.Array,
+        params: ReacherParams,
+    ) -> tuple[mjx.Data, NoExtras]:
         return self.sim.step(self.sim.model_with(params.model), data, action), extras
 
     def fingertip(self, data: mjx.Data) -> jax.Array:
@@ -266,7 +271,9 @@ class Reacher(Env[ReacherConfig]):
         q0, q1 = data.qpos[0], data.qpos[1]
         return self._base + _rotate(q0, self._link) + _rotate(q0 + q1, self._tip_offset)
 
-    def _observe(self, data: mjx.Data, extras: None, params: ReacherParams) -> jax.Array:
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: ReacherParams
+    ) -> jax.Array:
         target = data.mocap_pos[0, :2]
         q = data.qpos
         return jnp.concatenate(
@@ -278,10 +285,10 @@ class Reacher(Env[ReacherConfig]):
         prev: mjx.Data,
         data: mjx.Data,
         action: jax.Array,
-        extras: None,
+        extras: NoExtras,
         params: ReacherParams,
-    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]:
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
         distance = jnp.linalg.norm(self.fingertip(data) - data.mocap_pos[0, :2])
         ctrl_cost = self.config.ctrl_cost_weight * jnp.sum(jnp.square(action))
         reward = -distance - ctrl_cost
-        return reward, jnp.zeros((), bool), {"distance": distance, "ctrl_cost": ctrl_cost}
+        return reward, {"distance": distance, "ctrl_cost": ctrl_cost}
