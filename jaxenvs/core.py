@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import inspect
 from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
@@ -174,6 +175,14 @@ class TaskConfig:
 
 ConfigT = TypeVar("ConfigT", bound=TaskConfig)
 
+#: the arguments (after ``self``) of the task hooks whose signature changed when they
+#: gained keys; :meth:`Env.__init_subclass__` checks overrides against them.
+_HOOK_ARITY = {
+    "_act": ("key", "data", "extras", "action", "params"),
+    "_observe": ("key", "data", "extras", "params"),
+    "_terminated": ("data", "extras", "params"),
+}
+
 
 class Env(abc.ABC, Generic[ConfigT]):
     """Base class of every jaxenvs task. Holds no mutable state after construction."""
@@ -194,6 +203,22 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: benchmarks/RESULTS.md); the C engine fills only some ``mjx.Data`` fields
     #: (:data:`jaxenvs.cengine.WRITTEN`).
     cpu_physics: str = "mjx"
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Refuse hooks written to the old signatures (no key) with a message saying how."""
+        super().__init_subclass__(**kwargs)
+        for name, want in _HOOK_ARITY.items():
+            hook = cls.__dict__.get(name)
+            if hook is None or getattr(hook, "__isabstractmethod__", False):
+                continue
+            params = list(inspect.signature(hook).parameters.values())[1:]  # after self
+            if any(p.kind is p.VAR_POSITIONAL for p in params):
+                continue
+            if len([p for p in params if p.default is p.empty]) != len(want):
+                raise TypeError(
+                    f"{cls.__name__}.{name} must take ({', '.join(want)}); hooks receive "
+                    "their own random key first (see jaxenvs.core)"
+                )
 
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         requested = getattr(config, "physics", "auto")
@@ -335,7 +360,13 @@ class Env(abc.ABC, Generic[ConfigT]):
         action, nan_count = self.sanitize_action(action)
         key, act_key, obs_key = jax.random.split(state.key, 3)
         data, extras = self._act(act_key, state.data, state.extras, action, params)
-        reward, metrics = self._reward(state.data, data, action, extras, params)
+        out = self._reward(state.data, data, action, extras, params)
+        if not (isinstance(out, tuple) and len(out) == 2):
+            raise TypeError(
+                f"{type(self).__name__}._reward must return (reward, metrics); termination "
+                "is its own hook, _terminated(data, extras, params)"
+            )
+        reward, metrics = out
         terminated = jnp.asarray(self._terminated(data, extras, params), bool)
         obs = self._observe(obs_key, data, extras, params).astype(jnp.float32)
 

@@ -175,6 +175,10 @@ class Retraces(Pendulum):
         return data, extras + 0.5
 
 
+def test_example_with_observation_noise_passes_the_battery() -> None:
+    check_task(Pendulum(PendulumConfig(physics=TASK_LOGIC, obs_noise=0.1)), rollout_steps=50)
+
+
 def test_battery_names_a_reset_that_ignores_its_key() -> None:
     with pytest.raises(TaskCheckError, match=r"^\[determinism\] reset with different keys"):
         check_task(IgnoresKey(PendulumConfig(physics=TASK_LOGIC)))
