@@ -190,12 +190,10 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: tuple of task-specific info keys, fixed per task.
     metric_keys: tuple[str, ...] = ()
 
-    #: how many env steps a rollout ``lax.scan`` should unroll (``scan(..., unroll=...)``).
-    #: A speed/compile-time trade-off measured per task (``benchmarks/NOTES.md``): for the
-    #: tiny cartpole an unrolled loop body lets XLA fuse across steps and roughly doubles
-    #: CPU throughput at a few seconds more compile; for the hexapod it would multiply an
-    #: already long compile. The library's own rollouts (benchmarks, sharded rollouts)
-    #: use it; pass it to your own scans the same way.
+    #: how many env steps a rollout ``lax.scan`` should unroll (``scan(..., unroll=...)``):
+    #: a per-task speed/compile-time trade-off, forced to 1 under the C engine. The
+    #: library's own rollouts (benchmarks, sharded rollouts) use it; pass it to your own
+    #: scans the same way.
     scan_unroll: int = 1
 
     #: the engine ``physics="auto"`` picks on a CPU. ``"mjx"`` unless a task's engine
@@ -481,9 +479,8 @@ class BatchedEnv:
         split over the mesh; the compiler partitions the program (and adds the one
         cross-device reduction, the auto-reset's ``any(done)``).
 
-        Not a ``shard_map`` (which would let each device decide its own auto-reset): XLA's
-        CPU compiler in jax 0.11.2 crashes on this program as a ``shard_map`` over 8 host
-        devices (benchmarks/NOTES.md), while the constrained program compiles everywhere.
+        One program over the mesh, not a ``shard_map``: every device takes the same
+        auto-reset decision.
         """
         if self.mesh is None:
             return fn(*args)

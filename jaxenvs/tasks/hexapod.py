@@ -7,9 +7,7 @@ proportions of small hobby hexapod kits: hip yaw (+-0.46 rad), femur and tibia p
 knee; about 2.0 kg in all. Servos are MuJoCo position actuators (kp 20 N m/rad, torque
 limited to +-2 N m, joint damping 0.3, armature 0.005 kg m^2). Actions in [-1, 1] map
 linearly to joint POSITION targets over the joint range (0 = the standing pose: coxa and
-femur horizontal, tibia vertical). Position targets were chosen over velocity targets
-because a zero action then holds a stable stance with no controller in the loop, which is
-what hobby servos do (benchmarks/NOTES.md).
+femur horizontal, tibia vertical): a zero action holds a stable stance.
 
 =====================  =============================================================
 ``HexapodWalk-v0``      walk toward a target sampled at reset; falls end the episode
@@ -20,9 +18,8 @@ Physics for MJX speed on CPU (measurements in benchmarks/NOTES.md): the only col
 are six explicit foot-floor pairs (condim 3, pyramidal cone); joints are unlimited (no
 limit rows: the servo range is the joint range); Euler integration with damping implicit;
 the CG solver (``solver_iterations`` and ``ls_iterations`` from the config) with a SPARSE
-mass matrix, so that no step calls LAPACK: MJX's Newton solver and its dense
-factorisations call LAPACK's batched Cholesky, which deadlocks XLA's CPU thread pool on a
-2-core machine at batch >= 128 (the stall seen in early MJX probes; benchmarks/NOTES.md).
+mass matrix, so that no step calls LAPACK (MJX's Newton solver and dense factorisations
+do).
 
 Params (``HexapodParams``): ``model`` holds MJX model fields ``body_mass``,
 ``body_inertia``, ``dof_damping``, ``actuator_gainprm``, ``actuator_biasprm`` and
@@ -164,9 +161,8 @@ class WalkConfig(HexapodRandomization):
 
     Attributes:
       episode_length: 1000 steps of 0.05 s (50 s).
-      solver_iterations, ls_iterations: CG solver iterations and line-search steps. With
-        4 and 4 the stance jitters (joints at up to 0.6 rad/s after 10 s); 2 iterations
-        let an unconverged contact solve inject energy and launch the body (NOTES.md).
+      solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
+        contact solve.
       target_distance: the target is drawn at a distance uniform in this range (m), in a
         uniformly random direction.
       progress_weight: weight of the progress term (metres per second toward the target).
@@ -178,9 +174,7 @@ class WalkConfig(HexapodRandomization):
         (rad^2/s^2, body frame); yaw (turning) is free.
       min_height: the episode ends when the body's height falls below this (m).
       min_upright: ... or when the body's z axis' vertical component falls below this
-        (0.7: tilted more than ~45 degrees; 0 would be lying on its side). With 0, PPO
-        learned to scramble forward at 1.35 m/s tilted ~66 degrees on average, which is
-        falling forward rather than walking (benchmarks/RESULTS.md).
+        (0.7: tilted more than ~45 degrees; 0 would be lying on its side).
       init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
       init_height: initial body height (m): the feet start just above the floor.
     """
@@ -239,8 +233,7 @@ class HexapodWalk(Env[WalkConfig]):
 
     metric_keys = ("distance", "progress", "energy")
     #: the test battery's vmap-vs-single tolerance: the 6-iteration CG contact solve
-    #: amplifies the batched program's last-bit differences (measured after one control
-    #: step from the battery's states: joint velocities 2e-3 rad/s, qpos 3e-5).
+    #: amplifies the batched program's last-bit differences.
     vmap_atol = 1e-2
 
     def __init__(self, config: WalkConfig | None = None) -> None:

@@ -27,23 +27,17 @@
 * Termination: none. Truncation: ``episode_length`` (50) steps.
 * Start: joint angles uniform in +-``init_angle_noise`` (0.1 rad), velocities uniform in
   +-``init_velocity_noise`` (0.005 rad/s), as Reacher-v5.
-* Timing: 0.02 s per control step as ONE Euler substep of 0.02 s (``substeps=1``).
-  Gymnasium runs two RK4 steps of 0.01 s. Measured over 20 random-action episodes
-  against RK4 at 1 ms (MuJoCo C, float64): Euler 1 x 0.02 s puts the fingertip 11 mm
-  off on average (53 mm worst) and moves an episode's summed distance by 0.07 (2% of
-  the solved threshold); Euler 2 x 0.01 s halves that (5.5 mm, 0.036) at half the
-  throughput. ``timestep=0.01, substeps=2`` selects it.
+* Timing: 0.02 s per control step as ONE Euler substep of 0.02 s (``substeps=1``;
+  Gymnasium runs two RK4 steps of 0.01 s). ``timestep=0.01, substeps=2`` halves the
+  integration error at half the throughput.
 * Physics: no contacts, no constraints, gravity off (no torque about vertical hinges),
   Euler with damping integrated implicitly, sparse mass matrix (``jacobian="sparse"``:
-  MJX factorises M with plain JAX ops; the dense path calls LAPACK's Cholesky per step,
-  and the batched env ran 1.2x faster sparse at 4096 envs and 1.35x at 16384 on the
-  2-core CPU, benchmarks/NOTES.md). Each physics step is ``mjx.step`` (checked against
-  ``mujoco.mj_step`` in ``tests/test_parity.py``). ``mjx.step`` leaves positions one
-  substep behind ``qpos``, so the fingertip is computed from ``qpos`` by the arm's planar
-  kinematics (:func:`planar_arm` reads the link offsets from the MJCF and refuses any
-  other robot; ``tests/test_reacher.py`` checks it against MuJoCo's site position). A reset
-  therefore needs no kinematics pass: its compile is 1.5-3 s instead of 6-8 s, and the
-  batched step's first call 4-5 s shorter.
+  MJX factorises M with plain JAX ops, no LAPACK call per step). Each physics step is
+  ``mjx.step`` (checked against ``mujoco.mj_step`` in ``tests/test_parity.py``).
+  ``mjx.step`` leaves positions one substep behind ``qpos``, so the fingertip is computed
+  from ``qpos`` by the arm's planar kinematics (:func:`planar_arm` reads the link offsets
+  from the MJCF and refuses any other robot; ``tests/test_reacher.py`` checks it against
+  MuJoCo's site position); a reset needs no kinematics pass.
 
 Params (``ReacherParams``): ``model`` holds the MJX model fields ``body_mass``,
 ``body_inertia``, ``dof_armature``, ``dof_damping`` and ``actuator_gear``;
@@ -183,8 +177,6 @@ class Reacher(Env[ReacherConfig]):
     cpu_physics = "c"
 
     metric_keys = ("distance", "ctrl_cost")
-    #: 2: 1.05x the env steps/s of 1 at 16,384 envs on the 2-core CPU for 3.5 s more
-    #: compile; 3 was 1.18x but its first call came within a second or two of 20 s.
     scan_unroll = 2
 
     def __init__(self, config: ReacherConfig | None = None) -> None:
