@@ -42,8 +42,8 @@ import numpy as np
 
 import jaxenvs
 from jaxenvs import files
+from jaxenvs.actions import random_actions
 from jaxenvs.core import BatchedEnv, Env, State
-from jaxenvs.testing import random_actions
 
 MODES = ("full", "functional", "physics")
 

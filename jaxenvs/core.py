@@ -1,14 +1,27 @@
 """Core types: the env state, the task base class, and the batched auto-resetting env.
 
 A task is a pair of pure functions ``reset(key, params) -> State`` and
-``step(state, action, params) -> State``. Subclasses of :class:`Env` supply four hooks
-(the task layer) over a :class:`jaxenvs.sim.Sim` (the sim and robot layers):
+``step(state, action, params) -> State``. Subclasses of :class:`Env` supply hooks (the
+task layer) over a :class:`jaxenvs.sim.Sim` (the sim and robot layers):
 
 * ``_init(key, params) -> (data, extras)``: the initial-state distribution;
-* ``_act(data, extras, action, params) -> (data, extras)``: map a (sanitised) action
-  to controls and advance the physics one control step;
-* ``_observe(data, extras, params) -> obs``;
-* ``_reward(prev_data, data, action, extras, params) -> (reward, terminated, metrics)``.
+* ``_act(key, data, extras, action, params) -> (data, extras)``: map a (sanitised)
+  action to controls and advance the physics one control step; ``key`` is for action
+  noise or delay and pushes;
+* ``_observe(key, data, extras, params) -> obs``; ``key`` is for observation noise;
+* ``_reward(prev_data, data, action, extras, params) -> (reward, metrics)``;
+* ``_terminated(data, extras, params) -> bool`` (default: never).
+
+``extras`` is the task's own state (targets, commands, ...): a frozen
+:class:`flax.struct.PyTreeNode` of arrays whose structure is fixed per task
+(:class:`NoExtras` for tasks without one).
+
+**Keys.** ``reset`` splits its key once into (the state's next key, the init key, the
+observation key); ``step`` splits ``state.key`` once into (the next key, the act key,
+the observation key). Each hook gets its own subkey, used once; the first subkey becomes
+``state.key`` and drives every later step and auto-reset. A hook that does not draw
+random numbers ignores its key, and the task's trajectories are the same as if it had
+none.
 
 :class:`Env` adds what every task shares: action validation and sanitisation, episode
 counters, truncation at the episode length, divergence detection, and a fixed ``info``.
@@ -34,7 +47,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import warnings
+import inspect
 from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
@@ -47,6 +60,11 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
 from jaxenvs.config import require
+
+# re-exported for backward compatibility: device counting lives in jaxenvs.devices
+from jaxenvs.devices import ENV_AXIS as ENV_AXIS
+from jaxenvs.devices import batch_devices as batch_devices
+from jaxenvs.devices import divisible_devices as divisible_devices
 from jaxenvs.sim import Sim
 
 PyTree = Any
@@ -102,6 +120,10 @@ STANDARD_INFO_KEYS = (
 )
 
 
+class NoExtras(struct.PyTreeNode):
+    """The ``extras`` of a task that keeps no state of its own (no leaves)."""
+
+
 class State(struct.PyTreeNode):
     """The full state of one env (or of a batch, with a leading axis on every leaf).
 
@@ -112,7 +134,8 @@ class State(struct.PyTreeNode):
       terminated: the last transition reached a terminal state (no bootstrap).
       truncated: the episode hit its time limit (bootstrap from ``info["final_obs"]``).
       info: fixed dict of arrays, see the module docstring.
-      extras: task-specific state (targets, commanded velocities, ...).
+      extras: the task's own state (targets, commanded velocities, ...): a frozen
+        pytree of fixed structure per task, :class:`NoExtras` where there is none.
       time: int32 steps taken in the current episode.
       key: the PRNG key that drives this env's future randomness.
       params: per-env params of a randomised batched env, else ``None``.
@@ -168,6 +191,14 @@ class TaskConfig:
 
 ConfigT = TypeVar("ConfigT", bound=TaskConfig)
 
+#: the arguments (after ``self``) of the task hooks whose signature changed when they
+#: gained keys; :meth:`Env.__init_subclass__` checks overrides against them.
+_HOOK_ARITY = {
+    "_act": ("key", "data", "extras", "action", "params"),
+    "_observe": ("key", "data", "extras", "params"),
+    "_terminated": ("data", "extras", "params"),
+}
+
 
 class Env(abc.ABC, Generic[ConfigT]):
     """Base class of every jaxenvs task. Holds no mutable state after construction."""
@@ -175,23 +206,36 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: tuple of task-specific info keys, fixed per task.
     metric_keys: tuple[str, ...] = ()
 
-    #: how many env steps a rollout ``lax.scan`` should unroll (``scan(..., unroll=...)``).
-    #: A speed/compile-time trade-off measured per task (``benchmarks/NOTES.md``): for the
-    #: tiny cartpole an unrolled loop body lets XLA fuse across steps and roughly doubles
-    #: CPU throughput at a few seconds more compile; for the hexapod it would multiply an
-    #: already long compile. The library's own rollouts (benchmarks, sharded rollouts)
-    #: use it; pass it to your own scans the same way.
+    #: how many env steps a rollout ``lax.scan`` should unroll (``scan(..., unroll=...)``):
+    #: a per-task speed/compile-time trade-off, forced to 1 under the C engine. The
+    #: library's own rollouts (benchmarks, sharded rollouts) use it; pass it to your own
+    #: scans the same way.
     scan_unroll: int = 1
 
     #: the engine ``physics="auto"`` picks on a CPU. ``"mjx"`` unless a task's engine
     #: parity and speed were measured (our tasks: ``tests/test_cengine.py``,
-    #: benchmarks/RESULTS.md); the C engine fills only some ``mjx.Data`` fields
-    #: (:data:`jaxenvs.cengine.WRITTEN`).
+    #: benchmarks/RESULTS.md).
     cpu_physics: str = "mjx"
 
     #: on a CPU, ``physics="auto"`` picks MJX for batches of at least this many envs
     #: (:func:`cpu_auto`); ``None``: ``cpu_physics`` at every batch size.
     cpu_mjx_from: int | None = None
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """Refuse hooks written to the old signatures (no key) with a message saying how."""
+        super().__init_subclass__(**kwargs)
+        for name, want in _HOOK_ARITY.items():
+            hook = cls.__dict__.get(name)
+            if hook is None or getattr(hook, "__isabstractmethod__", False):
+                continue
+            params = list(inspect.signature(hook).parameters.values())[1:]  # after self
+            if any(p.kind is p.VAR_POSITIONAL for p in params):
+                continue
+            if len([p for p in params if p.default is p.empty]) != len(want):
+                raise TypeError(
+                    f"{cls.__name__}.{name} must take ({', '.join(want)}); hooks receive "
+                    "their own random key first (see jaxenvs.core)"
+                )
 
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         requested = getattr(config, "physics", "auto")
@@ -255,15 +299,20 @@ class Env(abc.ABC, Generic[ConfigT]):
 
     # ----------------------------------------------------------------- task hooks
     @abc.abstractmethod
-    def _init(self, key: jax.Array, params: Params) -> tuple[mjx.Data, PyTree]: ...
+    def _init(self, key: jax.Array, params: Params) -> tuple[mjx.Data, PyTree]:
+        """The initial physics state and ``extras``, drawn from ``key``."""
 
     @abc.abstractmethod
     def _act(
-        self, data: mjx.Data, extras: PyTree, action: jax.Array, params: Params
-    ) -> tuple[mjx.Data, PyTree]: ...
+        self, key: jax.Array, data: mjx.Data, extras: PyTree, action: jax.Array, params: Params
+    ) -> tuple[mjx.Data, PyTree]:
+        """Apply the sanitised ``action`` for one control step; returns the new physics
+        state and ``extras`` (same structure and dtypes). ``key``: this step's act key."""
 
     @abc.abstractmethod
-    def _observe(self, data: mjx.Data, extras: PyTree, params: Params) -> jax.Array: ...
+    def _observe(self, key: jax.Array, data: mjx.Data, extras: PyTree, params: Params) -> jax.Array:
+        """The observation, shape ``(observation_size,)``. ``key``: this step's (or
+        reset's) observation key."""
 
     @abc.abstractmethod
     def _reward(
@@ -273,7 +322,14 @@ class Env(abc.ABC, Generic[ConfigT]):
         action: jax.Array,
         extras: PyTree,
         params: Params,
-    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]: ...
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
+        """The reward of the transition ``prev -> data`` under ``action`` and the task's
+        metrics (a dict with exactly the keys :attr:`metric_keys`)."""
+
+    def _terminated(self, data: mjx.Data, extras: PyTree, params: Params) -> jax.Array:
+        """True if ``data`` is a terminal state (no bootstrap). Default: never."""
+        del data, extras, params
+        return jnp.zeros((), bool)
 
     def _zero_metrics(self) -> dict[str, jax.Array]:
         return {k: jnp.zeros((), jnp.float32) for k in self.metric_keys}
@@ -282,9 +338,9 @@ class Env(abc.ABC, Generic[ConfigT]):
     def reset(self, key: jax.Array, params: Params = None) -> State:
         """Start an episode from the task's initial-state distribution."""
         params = self.default_params if params is None else params
-        key, init_key = jax.random.split(key)
+        key, init_key, obs_key = jax.random.split(key, 3)
         data, extras = self._init(init_key, params)
-        obs = self._observe(data, extras, params).astype(jnp.float32)
+        obs = self._observe(obs_key, data, extras, params).astype(jnp.float32)
         zero = jnp.zeros((), jnp.float32)
         info = {
             "episode_return": zero,
@@ -319,10 +375,17 @@ class Env(abc.ABC, Generic[ConfigT]):
         if params is None:
             params = self.default_params if state.params is None else state.params
         action, nan_count = self.sanitize_action(action)
-        key, _ = jax.random.split(state.key)
-        data, extras = self._act(state.data, state.extras, action, params)
-        reward, terminated, metrics = self._reward(state.data, data, action, extras, params)
-        obs = self._observe(data, extras, params).astype(jnp.float32)
+        key, act_key, obs_key = jax.random.split(state.key, 3)
+        data, extras = self._act(act_key, state.data, state.extras, action, params)
+        out = self._reward(state.data, data, action, extras, params)
+        if not (isinstance(out, tuple) and len(out) == 2):
+            raise TypeError(
+                f"{type(self).__name__}._reward must return (reward, metrics); termination "
+                "is its own hook, _terminated(data, extras, params)"
+            )
+        reward, metrics = out
+        terminated = jnp.asarray(self._terminated(data, extras, params), bool)
+        obs = self._observe(obs_key, data, extras, params).astype(jnp.float32)
 
         bound = self.config.divergence_bound
         phys = jnp.concatenate([data.qpos, data.qvel])
@@ -389,55 +452,6 @@ class Env(abc.ABC, Generic[ConfigT]):
         return f"{type(self).__name__}({self.config})"
 
 
-#: name of the mesh axis an env batch is split over (see :mod:`jaxenvs.sharding`).
-ENV_AXIS = "envs"
-
-
-def divisible_devices(num_envs: int, available: int) -> int:
-    """The most devices, at most ``available``, that ``num_envs`` splits over evenly."""
-    return max(d for d in range(1, min(available, num_envs) + 1) if num_envs % d == 0)
-
-
-def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
-    """How many local devices a batch of ``num_envs`` envs is spread over.
-
-    ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
-    host devices, see :mod:`jaxenvs.machine`, or GPUs), or as many of them as
-    ``num_envs`` divides over evenly, with a warning when that is fewer; under the C
-    engine one (its own threads spread the batch). An explicit count must divide
-    ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.
-    """
-    available = jax.local_device_count()
-    if devices is None:
-        if physics == "c" or available == 1:
-            return 1
-        n = divisible_devices(num_envs, available)
-        if n < available and num_envs >= available:
-            lower = num_envs - num_envs % available
-            warnings.warn(
-                f"num_envs={num_envs} does not divide over the {available} local devices: "
-                f"spreading over {n} (a multiple of {available}, e.g. {lower} or "
-                f"{lower + available}, uses them all)",
-                stacklevel=3,
-            )
-        return n
-    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
-        raise ValueError(f"devices must be a positive integer, got {devices!r}")
-    if devices > available:
-        raise ValueError(
-            f"asked for {devices} devices but only {available} are available "
-            f"({jax.default_backend()}); on a CPU call jaxenvs.machine.use_cores first, or "
-            f"set XLA_FLAGS=--xla_force_host_platform_device_count={devices} before JAX starts"
-        )
-    if num_envs % devices:
-        lower = max(devices, num_envs - num_envs % devices)
-        raise ValueError(
-            f"num_envs={num_envs} does not divide evenly over {devices} devices: use a "
-            f"multiple of {devices} (e.g. {lower} or {lower + devices}), or fewer devices"
-        )
-    return devices
-
-
 class BatchedEnv:
     """``num_envs`` copies of an :class:`Env` stepped by one vmapped function.
 
@@ -484,9 +498,8 @@ class BatchedEnv:
         split over the mesh; the compiler partitions the program (and adds the one
         cross-device reduction, the auto-reset's ``any(done)``).
 
-        Not a ``shard_map`` (which would let each device decide its own auto-reset): XLA's
-        CPU compiler in jax 0.11.2 crashes on this program as a ``shard_map`` over 8 host
-        devices (benchmarks/NOTES.md), while the constrained program compiles everywhere.
+        One program over the mesh, not a ``shard_map``: every device takes the same
+        auto-reset decision.
         """
         if self.mesh is None:
             return fn(*args)

@@ -53,15 +53,15 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxenvs import core
+from jaxenvs import devices as devices_mod
+from jaxenvs.actions import random_actions
 from jaxenvs.agents.base import Trainer
 from jaxenvs.core import BatchedEnv, State
-from jaxenvs.testing import random_actions
 
 PyTree = Any
 
-#: name of the mesh axis the env batch is split over (:data:`jaxenvs.core.ENV_AXIS`).
-ENV_AXIS = core.ENV_AXIS
+#: name of the mesh axis the env batch is split over (:data:`jaxenvs.devices.ENV_AXIS`).
+ENV_AXIS = devices_mod.ENV_AXIS
 
 #: the environment variables :func:`maybe_initialize_distributed` reads.
 DISTRIBUTED_ENV_VARS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
@@ -136,15 +136,8 @@ def resolve_devices(devices: int | None = None) -> list[jax.Device]:
     available = jax.devices()
     if devices is None:
         return list(available)
-    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
-        raise ValueError(f"devices must be a positive integer, got {devices!r}")
-    if devices > len(available):
-        raise ValueError(
-            f"asked for {devices} devices but only {len(available)} are available "
-            f"({available[0].platform}); on a CPU set "
-            f"XLA_FLAGS=--xla_force_host_platform_device_count={devices} before JAX starts"
-        )
-    return list(available[:devices])
+    n = devices_mod.check_count(devices, len(available), available[0].platform)
+    return list(available[:n])
 
 
 def make_mesh(devices: int | Sequence[jax.Device] | None = None) -> Mesh:
@@ -165,12 +158,7 @@ def make_mesh(devices: int | Sequence[jax.Device] | None = None) -> Mesh:
 def validate_batch(num_envs: int, devices: int | Mesh) -> None:
     """Raise ``ValueError`` unless ``num_envs`` splits evenly over ``devices``."""
     n = devices.size if isinstance(devices, Mesh) else int(devices)
-    if num_envs % n:
-        lower = max(n, num_envs - num_envs % n)
-        raise ValueError(
-            f"num_envs={num_envs} does not divide evenly over {n} devices: use a multiple "
-            f"of {n} (e.g. {lower} or {lower + n}), or fewer devices (--devices)"
-        )
+    devices_mod.check_divisible(num_envs, n, hint=" (--devices)")
 
 
 def batch_sharding(mesh: Mesh, axis: int = 0) -> NamedSharding:

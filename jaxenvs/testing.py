@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+# re-exported for backward compatibility: random actions live in jaxenvs.actions
+from jaxenvs.actions import random_actions as random_actions
 from jaxenvs.core import STANDARD_INFO_KEYS, BatchedEnv, Env, State
 
 
@@ -30,13 +32,6 @@ class TaskCheckError(AssertionError):
 
 def _fail(name: str, message: str) -> None:
     raise TaskCheckError(f"[{name}] {message}")
-
-
-def random_actions(env: Env, key: jax.Array, batch: tuple[int, ...] = ()) -> jax.Array:
-    """Uniform random actions of the env's action space (batched by ``batch``)."""
-    if env.discrete:
-        return jax.random.randint(key, batch, 0, env.action_size)
-    return jax.random.uniform(key, (*batch, env.action_size), minval=-1.0, maxval=1.0)
 
 
 def _counting_jit(fn: Callable[..., Any]) -> tuple[Callable[..., Any], list[int]]:
@@ -119,6 +114,49 @@ class TaskChecker:
         if not _leaves_close(self.step(a, act), self.step(b, act), atol=0.0):
             _fail("determinism", "step from equal states with the same action differed")
 
+    def check_keys(self) -> None:
+        """Hooks draw only from the keys ``step`` hands them.
+
+        A step is deterministic per state key and advances the key (the next key differs
+        from the one before and across different keys). If ``_observe`` or ``_act``
+        depends on its key (observation noise, action delay, pushes), a step from the same
+        state under a different key must give a different observation or physics state,
+        and the same key must give the same one.
+        """
+        env, params = self.env, self.env.default_params
+        s = self.reset(jax.random.key(11))
+        other = s.replace(key=jax.random.key(13))
+        act = random_actions(env, jax.random.key(12))
+        a, a2, b = self.step(s, act), self.step(s, act), self.step(other, act)
+        if not _leaves_close(a, a2, atol=0.0):
+            _fail("keys", "step from equal states with the same key differed")
+        keys = [np.asarray(jax.random.key_data(x.key)) for x in (s, a, other, b)]
+        if np.array_equal(keys[0], keys[1]) or np.array_equal(keys[1], keys[3]):
+            _fail("keys", "step did not advance state.key (it must split it, never reuse it)")
+        k1, k2 = jax.random.key(21), jax.random.key(22)
+
+        def observe(k: jax.Array) -> jax.Array:
+            return env._observe(k, s.data, s.extras, params)
+
+        def act_qpos(k: jax.Array) -> jax.Array:
+            return env._act(k, s.data, s.extras, act, params)[0].qpos
+
+        for hook, fn, got in (("_observe", observe, "obs"), ("_act", act_qpos, "qpos")):
+            run = jax.jit(fn)
+            first, again, second = (np.asarray(run(k)) for k in (k1, k1, k2))
+            if not np.array_equal(first, again, equal_nan=True):
+                _fail("keys", f"{hook} gave different results for the same key")
+            if np.allclose(first, second):
+                continue  # the hook does not draw from its key
+            out_a = a.obs if got == "obs" else a.data.qpos
+            out_b = b.obs if got == "obs" else b.data.qpos
+            if np.allclose(np.asarray(out_a), np.asarray(out_b)):
+                _fail(
+                    "keys",
+                    f"{hook} draws from its key, but steps under different state keys gave "
+                    f"the same {got}: step does not hand it a key drawn from state.key",
+                )
+
     def check_spaces(self) -> None:
         """Observations and actions conform to the declared spaces; info keys are fixed."""
         env = self.env
@@ -194,6 +232,7 @@ class TaskChecker:
     def run_all(self) -> None:
         self.check_single_trace()
         self.check_determinism()
+        self.check_keys()
         self.check_spaces()
         self.check_vmap_matches()
         self.check_rollout()

@@ -22,7 +22,7 @@ import pytest
 from flax import struct
 
 from jaxenvs import registry
-from jaxenvs.core import Env, TaskConfig
+from jaxenvs.core import Env, NoExtras, TaskConfig
 
 
 class FakeSim:
@@ -62,16 +62,19 @@ class OneState(Env[OneStateConfig]):
     default_params = None
 
     def _init(self, key, params):  # type: ignore[no-untyped-def]
-        return FakeData(qpos=jnp.zeros(1), qvel=jnp.zeros(1)), None
+        return FakeData(qpos=jnp.zeros(1), qvel=jnp.zeros(1)), NoExtras()
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(self, key, data, extras, action, params):  # type: ignore[no-untyped-def]
         return data, extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+    def _observe(self, key, data, extras, params):  # type: ignore[no-untyped-def]
         return data.qpos
 
     def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
-        return jnp.ones((), jnp.float32), jnp.asarray(self.config.terminate), {}
+        return jnp.ones((), jnp.float32), {}
+
+    def _terminated(self, data, extras, params):  # type: ignore[no-untyped-def]
+        return jnp.asarray(self.config.terminate)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,18 +93,20 @@ class Chain(Env[ChainConfig]):
     default_params = None
 
     def _init(self, key, params):  # type: ignore[no-untyped-def]
-        return FakeData(qpos=jnp.zeros(1), qvel=jnp.zeros(1)), None
+        return FakeData(qpos=jnp.zeros(1), qvel=jnp.zeros(1)), NoExtras()
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(self, key, data, extras, action, params):  # type: ignore[no-untyped-def]
         step = jnp.where(action == 1, 1.0, -1.0)
         return data.replace(qpos=jnp.maximum(data.qpos + step, 0.0)), extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+    def _observe(self, key, data, extras, params):  # type: ignore[no-untyped-def]
         return data.qpos
 
     def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
-        at_goal = data.qpos[0] >= self.config.length
-        return at_goal.astype(jnp.float32), at_goal, {}
+        return (data.qpos[0] >= self.config.length).astype(jnp.float32), {}
+
+    def _terminated(self, data, extras, params):  # type: ignore[no-untyped-def]
+        return data.qpos[0] >= self.config.length
 
 
 FAKES = {

@@ -25,6 +25,10 @@ def test_determinism(get_checker, env_id, physics):
     get_checker(env_id, physics).check_determinism()
 
 
+def test_keys(get_checker, env_id, physics):
+    get_checker(env_id, physics).check_keys()
+
+
 def test_spaces(get_checker, env_id, physics):
     get_checker(env_id, physics).check_spaces()
 

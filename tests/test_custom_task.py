@@ -35,6 +35,7 @@ from my_pendulum.task import Pendulum, PendulumConfig  # noqa: E402
 import jaxenvs  # noqa: E402
 from jaxenvs import registry  # noqa: E402
 from jaxenvs.cli import main  # noqa: E402
+from jaxenvs.core import NoExtras  # noqa: E402
 from jaxenvs.testing import TaskCheckError, check_task  # noqa: E402
 
 ID = "MyPendulum-v0"
@@ -169,9 +170,13 @@ class Retraces(Pendulum):
         data, _ = super()._init(key, params)
         return data, jnp.zeros((), jnp.int32)
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
-        data, _ = super()._act(data, None, action, params)
+    def _act(self, key, data, extras, action, params):  # type: ignore[no-untyped-def]
+        data, _ = super()._act(key, data, NoExtras(), action, params)
         return data, extras + 0.5
+
+
+def test_example_with_observation_noise_passes_the_battery() -> None:
+    check_task(Pendulum(PendulumConfig(physics=TASK_LOGIC, obs_noise=0.1)), rollout_steps=50)
 
 
 def test_battery_names_a_reset_that_ignores_its_key() -> None:

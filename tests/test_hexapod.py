@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from jaxenvs.core import NoExtras
 from jaxenvs.tasks.hexapod import (
     JOINT_RANGE,
     HexapodOneLeg,
@@ -128,8 +129,10 @@ def test_walker_tilt_and_spin_penalties(walk):
     nxt = prev.replace(qpos=prev.qpos.at[3:7].set(tilt), qvel=qvel)
     shaped = HexapodWalk(WalkConfig(tilt_weight=2.0, spin_weight=0.1))
     params, action = env.default_params, jnp.zeros(18)
-    base, fallen, _ = env._reward(state.data, nxt, action, None, params)
-    reward, shaped_fallen, _ = shaped._reward(state.data, nxt, action, None, params)
+    base, _ = env._reward(state.data, nxt, action, NoExtras(), params)
+    reward, _ = shaped._reward(state.data, nxt, action, NoExtras(), params)
+    fallen = env._terminated(nxt, NoExtras(), params)
+    shaped_fallen = shaped._terminated(nxt, NoExtras(), params)
     up_z = quat_to_mat(nxt.qpos[3:7])[2, 2]
     expected = base - 2.0 * (1.0 - up_z) - 0.1 * jnp.sum(nxt.qvel[3:5] ** 2)
     assert float(1.0 - up_z) > 0.05 and float(jnp.sum(nxt.qvel[3:5] ** 2)) > 0.5
@@ -169,10 +172,10 @@ def test_walker_parity_with_mujoco(physics):
 def test_one_leg_target_is_reachable(leg):
     env, reset, step = leg
     states = jax.vmap(env.reset)(jax.random.split(jax.random.key(4), 512))
-    target_q = np.asarray(states.extras)
+    target_q = np.asarray(states.extras.target_q)
     assert np.all(np.abs(target_q) <= np.asarray(JOINT_RANGE[:3]) + 1e-6)
     targets = np.asarray(states.obs[:, 6:9])
-    fk = np.asarray(jax.vmap(leg_tip)(states.extras))
+    fk = np.asarray(jax.vmap(leg_tip)(states.extras.target_q))
     np.testing.assert_allclose(fk, targets, atol=1e-6)
     # forward kinematics agrees with MuJoCo's own kinematics of the leg model
     m = env.sim.mj_model
@@ -193,7 +196,7 @@ def test_one_leg_target_is_reachable(leg):
 def test_one_leg_servo_reaches_target(leg):
     env, reset, step = leg
     state = reset(jax.random.key(5))
-    action = jnp.clip(state.extras / JOINT_RANGE[:3], -1.0, 1.0)
+    action = jnp.clip(state.extras.target_q / JOINT_RANGE[:3], -1.0, 1.0)
     for _ in range(40):
         state = step(state, action)
     assert float(state.info["distance"]) < 0.01  # 1 cm: the servo's sag under gravity

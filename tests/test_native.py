@@ -119,8 +119,8 @@ def test_walker_fields_match_mjx_in_the_air():
 class _ReadsPoses(CartpoleBalance):
     """A user's task whose observation reads a body position, a site position and qacc."""
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
-        base = super()._observe(data, extras, params)
+    def _observe(self, key, data, extras, params):  # type: ignore[no-untyped-def]
+        base = super()._observe(key, data, extras, params)
         return jnp.concatenate([base, data.xpos[2], data.site_xpos[0], data.qacc])
 
     @property

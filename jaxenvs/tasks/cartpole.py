@@ -33,7 +33,7 @@ from mujoco import mjx
 
 from jaxenvs import randomize
 from jaxenvs.config import require
-from jaxenvs.core import Env, TaskConfig
+from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots import robot_xml
 from jaxenvs.sim import Sim
@@ -96,6 +96,11 @@ def sample_cartpole_params(
     )
     fields["actuator_gear"] = randomize.scale(gain_key, fields["actuator_gear"], config.gain_scale)
     return CartpoleParams(model=fields)
+
+
+def _state_obs(data: mjx.Data) -> jax.Array:
+    """Cart position, cart velocity, pole angle, pole angular velocity."""
+    return jnp.stack([data.qpos[SLIDER], data.qvel[SLIDER], data.qpos[HINGE], data.qvel[HINGE]])
 
 
 # --------------------------------------------------------------------------- CartPole-v0
@@ -162,25 +167,43 @@ class CartPole(Env[CartPoleConfig]):
     def sample_params(self, key: jax.Array) -> CartpoleParams:
         return sample_cartpole_params(key, self._params, self.config)
 
-    def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, None]:
+    def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, NoExtras]:
         r = self.config.init_range
         s = jax.random.uniform(key, (4,), minval=-r, maxval=r)
         data = self.sim.init_data(qpos=s[jnp.array([0, 2])], qvel=s[jnp.array([1, 3])])
-        return data, None
+        return data, NoExtras()
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: NoExtras,
+        action: jax.Array,
+        params: CartpoleParams,
+    ) -> tuple[mjx.Data, NoExtras]:
         ctrl = jnp.where(action == 1, 1.0, -1.0)[None]
         return self.sim.step(self.sim.model_with(params.model), data, ctrl), extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
-        return jnp.stack([data.qpos[SLIDER], data.qvel[SLIDER], data.qpos[HINGE], data.qvel[HINGE]])
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: CartpoleParams
+    ) -> jax.Array:
+        return _state_obs(data)
 
-    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: NoExtras,
+        params: CartpoleParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
+        return jnp.ones((), jnp.float32), {}
+
+    def _terminated(self, data: mjx.Data, extras: NoExtras, params: CartpoleParams) -> jax.Array:
         c = self.config
-        terminated = (jnp.abs(data.qpos[SLIDER]) > c.x_threshold) | (
+        return (jnp.abs(data.qpos[SLIDER]) > c.x_threshold) | (
             jnp.abs(data.qpos[HINGE]) > c.theta_threshold
         )
-        return jnp.ones((), jnp.float32), terminated, {}
 
 
 # --------------------------------------------------------------------- CartpoleStayUp-v0
@@ -244,6 +267,16 @@ class StayUpConfig(CartpoleRandomization):
         require(self.max_force > 0, "max_force", "must be positive")
 
 
+class StayUpExtras(struct.PyTreeNode):
+    """``CartpoleStayUp-v0``'s own state.
+
+    Attributes:
+      command: the commanded cart velocity (m/s), float32 scalar.
+    """
+
+    command: jax.Array
+
+
 class CartpoleStayUp(Env[StayUpConfig]):
     """``CartpoleStayUp-v0``: keep the pole up by nudging the cart's commanded velocity.
 
@@ -260,7 +293,7 @@ class CartpoleStayUp(Env[StayUpConfig]):
       commanded velocity 0.
     * Timing: 0.01 s physics steps, 4 per control step (running_step 0.04 s).
 
-    ``extras`` holds the commanded cart velocity.
+    ``extras`` (:class:`StayUpExtras`) holds the commanded cart velocity.
     """
 
     #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
@@ -292,17 +325,24 @@ class CartpoleStayUp(Env[StayUpConfig]):
     def sample_params(self, key: jax.Array) -> CartpoleParams:
         return sample_cartpole_params(key, self._params, self.config)
 
-    def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, jax.Array]:
+    def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, StayUpExtras]:
         n = self.config.init_noise
         noise = jax.random.uniform(key, (3,), minval=-n, maxval=n)
         qpos = jnp.stack([jnp.asarray(self.config.init_pos, jnp.float32), noise[0]])
         data = self.sim.init_data(qpos=qpos, qvel=noise[1:])
-        return data, jnp.zeros((), jnp.float32)
+        return data, StayUpExtras(command=jnp.zeros((), jnp.float32))
 
-    def _act(self, data, command, action, params):  # type: ignore[no-untyped-def]
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: StayUpExtras,
+        action: jax.Array,
+        params: CartpoleParams,
+    ) -> tuple[mjx.Data, StayUpExtras]:
         c = self.config
         command = jnp.clip(
-            command + self._increments[action], -c.max_base_velocity, c.max_base_velocity
+            extras.command + self._increments[action], -c.max_base_velocity, c.max_base_velocity
         )
 
         def servo(d: mjx.Data) -> jax.Array:
@@ -310,21 +350,34 @@ class CartpoleStayUp(Env[StayUpConfig]):
             return jnp.clip(force / c.max_force, -1.0, 1.0)[None]
 
         model = self.sim.model_with(params.model)
-        return self.sim.step_controlled(model, data, servo), command
+        return self.sim.step_controlled(model, data, servo), StayUpExtras(command=command)
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
-        return jnp.stack([data.qpos[SLIDER], data.qvel[SLIDER], data.qpos[HINGE], data.qvel[HINGE]])
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: StayUpExtras, params: CartpoleParams
+    ) -> jax.Array:
+        return _state_obs(data)
 
-    def _reward(self, prev, data, action, command, params):  # type: ignore[no-untyped-def]
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: StayUpExtras,
+        params: CartpoleParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
+        return jnp.ones((), jnp.float32), {"command": extras.command}
+
+    def _terminated(
+        self, data: mjx.Data, extras: StayUpExtras, params: CartpoleParams
+    ) -> jax.Array:
         c = self.config
         x, theta = data.qpos[SLIDER], data.qpos[HINGE]
-        terminated = (
+        return (
             (theta < c.min_pole_angle)
             | (theta > c.max_pole_angle)
             | (x < c.min_base_pose_x)
             | (x > c.max_base_pose_x)
         )
-        return jnp.ones((), jnp.float32), terminated, {"command": command}
 
 
 # ------------------------------------------------------ CartpoleBalance / CartpoleSwingup
@@ -389,7 +442,7 @@ class CartpoleBalance(Env[BalanceConfig]):
     def sample_params(self, key: jax.Array) -> CartpoleParams:
         return sample_cartpole_params(key, self._params, self.config)
 
-    def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, None]:
+    def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, NoExtras]:
         pos_key, vel_key = jax.random.split(key)
         if self.config.swing_up:
             qpos = 0.01 * jax.random.normal(pos_key, (2,)) + jnp.array([0.0, jnp.pi])
@@ -397,18 +450,34 @@ class CartpoleBalance(Env[BalanceConfig]):
             qpos = jax.random.uniform(pos_key, (2,), minval=-1.0, maxval=1.0)
             qpos = qpos * jnp.array([0.1, 0.034])
         qvel = 0.01 * jax.random.normal(vel_key, (2,))
-        return self.sim.init_data(qpos=qpos, qvel=qvel), None
+        return self.sim.init_data(qpos=qpos, qvel=qvel), NoExtras()
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: NoExtras,
+        action: jax.Array,
+        params: CartpoleParams,
+    ) -> tuple[mjx.Data, NoExtras]:
         return self.sim.step(self.sim.model_with(params.model), data, action), extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: CartpoleParams
+    ) -> jax.Array:
         theta = data.qpos[HINGE]
         return jnp.stack(
             [data.qpos[SLIDER], jnp.cos(theta), jnp.sin(theta), data.qvel[SLIDER], data.qvel[HINGE]]
         )
 
-    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: NoExtras,
+        params: CartpoleParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
         x, theta = data.qpos[SLIDER], data.qpos[HINGE]
         upright = (jnp.cos(theta) + 1.0) / 2.0
         centered = (1.0 + tolerance(x, margin=2.0)) / 2.0
@@ -417,5 +486,7 @@ class CartpoleBalance(Env[BalanceConfig]):
         ) / 5.0
         small_velocity = (1.0 + tolerance(data.qvel[HINGE], margin=5.0)) / 2.0
         reward = upright * centered * small_control * small_velocity
-        terminated = jnp.abs(x) > self.config.cart_limit
-        return reward.astype(jnp.float32), terminated, {}
+        return reward.astype(jnp.float32), {}
+
+    def _terminated(self, data: mjx.Data, extras: NoExtras, params: CartpoleParams) -> jax.Array:
+        return jnp.abs(data.qpos[SLIDER]) > self.config.cart_limit

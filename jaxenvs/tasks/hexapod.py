@@ -7,9 +7,7 @@ proportions of small hobby hexapod kits: hip yaw (+-0.46 rad), femur and tibia p
 knee; about 2.0 kg in all. Servos are MuJoCo position actuators (kp 20 N m/rad, torque
 limited to +-2 N m, joint damping 0.3, armature 0.005 kg m^2). Actions in [-1, 1] map
 linearly to joint POSITION targets over the joint range (0 = the standing pose: coxa and
-femur horizontal, tibia vertical). Position targets were chosen over velocity targets
-because a zero action then holds a stable stance with no controller in the loop, which is
-what hobby servos do (benchmarks/NOTES.md).
+femur horizontal, tibia vertical): a zero action holds a stable stance.
 
 =====================  =============================================================
 ``HexapodWalk-v0``      walk toward a target sampled at reset; falls end the episode
@@ -20,9 +18,8 @@ Physics for MJX speed on CPU (measurements in benchmarks/NOTES.md): the only col
 are six explicit foot-floor pairs (condim 3, pyramidal cone); joints are unlimited (no
 limit rows: the servo range is the joint range); Euler integration with damping implicit;
 the CG solver (``solver_iterations`` and ``ls_iterations`` from the config) with a SPARSE
-mass matrix, so that no step calls LAPACK: MJX's Newton solver and its dense
-factorisations call LAPACK's batched Cholesky, which deadlocks XLA's CPU thread pool on a
-2-core machine at batch >= 128 (the stall seen in early MJX probes; benchmarks/NOTES.md).
+mass matrix, so that no step calls LAPACK (MJX's Newton solver and dense factorisations
+do).
 
 Params (``HexapodParams``): ``model`` holds MJX model fields ``body_mass``,
 ``body_inertia``, ``dof_damping``, ``actuator_gainprm``, ``actuator_biasprm`` and
@@ -46,7 +43,7 @@ from mujoco import mjx
 
 from jaxenvs import randomize
 from jaxenvs.config import require
-from jaxenvs.core import Env, TaskConfig
+from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots import robot_xml
 from jaxenvs.sim import Sim
@@ -164,9 +161,8 @@ class WalkConfig(HexapodRandomization):
 
     Attributes:
       episode_length: 1000 steps of 0.05 s (50 s).
-      solver_iterations, ls_iterations: CG solver iterations and line-search steps. With
-        4 and 4 the stance jitters (joints at up to 0.6 rad/s after 10 s); 2 iterations
-        let an unconverged contact solve inject energy and launch the body (NOTES.md).
+      solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
+        contact solve.
       target_distance: the target is drawn at a distance uniform in this range (m), in a
         uniformly random direction.
       progress_weight: weight of the progress term (metres per second toward the target).
@@ -178,9 +174,7 @@ class WalkConfig(HexapodRandomization):
         (rad^2/s^2, body frame); yaw (turning) is free.
       min_height: the episode ends when the body's height falls below this (m).
       min_upright: ... or when the body's z axis' vertical component falls below this
-        (0.7: tilted more than ~45 degrees; 0 would be lying on its side). With 0, PPO
-        learned to scramble forward at 1.35 m/s tilted ~66 degrees on average, which is
-        falling forward rather than walking (benchmarks/RESULTS.md).
+        (0.7: tilted more than ~45 degrees; 0 would be lying on its side).
       init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
       init_height: initial body height (m): the feet start just above the floor.
     """
@@ -239,8 +233,7 @@ class HexapodWalk(Env[WalkConfig]):
 
     metric_keys = ("distance", "progress", "energy")
     #: the test battery's vmap-vs-single tolerance: the 6-iteration CG contact solve
-    #: amplifies the batched program's last-bit differences (measured after one control
-    #: step from the battery's states: joint velocities 2e-3 rad/s, qpos 3e-5).
+    #: amplifies the batched program's last-bit differences.
     vmap_atol = 1e-2
 
     def __init__(self, config: WalkConfig | None = None) -> None:
@@ -268,7 +261,7 @@ class HexapodWalk(Env[WalkConfig]):
     def sample_params(self, key: jax.Array) -> HexapodParams:
         return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
-    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, None]:
+    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, NoExtras]:
         joint_key, yaw_key, dist_key, angle_key = jax.random.split(key, 4)
         c = self.config
         yaw = jax.random.uniform(yaw_key, minval=-math.pi, maxval=math.pi)
@@ -281,13 +274,22 @@ class HexapodWalk(Env[WalkConfig]):
         angle = jax.random.uniform(angle_key, minval=-math.pi, maxval=math.pi)
         target = jnp.stack([dist * jnp.cos(angle), dist * jnp.sin(angle), 0.01])[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24), mocap_pos=target)
-        return data, None
+        return data, NoExtras()
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: NoExtras,
+        action: jax.Array,
+        params: HexapodParams,
+    ) -> tuple[mjx.Data, NoExtras]:
         model = self.sim.model_with(params.model)
         return self.sim.step(model, data, servo_targets(action)), extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: HexapodParams
+    ) -> jax.Array:
         rot = quat_to_mat(data.qpos[3:7])
         to_target = data.mocap_pos[0, :2] - data.qpos[:2]
         to_target = to_target / jnp.maximum(jnp.linalg.norm(to_target), 1e-6)
@@ -304,7 +306,14 @@ class HexapodWalk(Env[WalkConfig]):
             ]
         )
 
-    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: NoExtras,
+        params: HexapodParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
         c = self.config
         target = data.mocap_pos[0, :2]
         d_prev = jnp.linalg.norm(target - prev.qpos[:2])
@@ -312,7 +321,6 @@ class HexapodWalk(Env[WalkConfig]):
         progress = (d_prev - dist) / self.control_dt
         energy = jnp.sum(jnp.abs(data.actuator_force * data.qvel[6:]))
         upright = quat_to_mat(data.qpos[3:7])[2, 2]
-        fallen = (data.qpos[2] < c.min_height) | (upright < c.min_upright)
         spin = jnp.sum(jnp.square(data.qvel[3:5]))  # free joint: body-frame rates
         reward = (
             c.progress_weight * progress
@@ -322,7 +330,13 @@ class HexapodWalk(Env[WalkConfig]):
             + c.alive_bonus
         )
         metrics = {"distance": dist, "progress": progress, "energy": energy}
-        return reward, fallen, metrics
+        return reward, metrics
+
+    def _terminated(self, data: mjx.Data, extras: NoExtras, params: HexapodParams) -> jax.Array:
+        """Fallen: the body below ``min_height`` or tilted past ``min_upright``."""
+        c = self.config
+        upright = quat_to_mat(data.qpos[3:7])[2, 2]
+        return (data.qpos[2] < c.min_height) | (upright < c.min_upright)
 
 
 # ------------------------------------------------------------------------ HexapodOneLeg-v0
@@ -347,6 +361,16 @@ class OneLegConfig(HexapodRandomization):
         require(self.init_joint_noise >= 0, "init_joint_noise", "must be >= 0")
 
 
+class OneLegExtras(struct.PyTreeNode):
+    """``HexapodOneLeg-v0``'s own state.
+
+    Attributes:
+      target_q: the target posture's joint angles (3, rad); the target is their foot tip.
+    """
+
+    target_q: jax.Array
+
+
 class HexapodOneLeg(Env[OneLegConfig]):
     """``HexapodOneLeg-v0``: one hexapod leg on a fixed base reaches for a target.
 
@@ -357,7 +381,7 @@ class HexapodOneLeg(Env[OneLegConfig]):
     * Termination: none. Truncation: 100 steps.
     * Start: joints uniform in +-0.1 rad, at rest. Target: joint angles drawn uniformly
       in ``target_fraction`` x each joint's half-range, mapped through forward kinematics,
-      so it is always reachable; ``extras`` keeps those angles.
+      so it is always reachable; ``extras`` (:class:`OneLegExtras`) keeps those angles.
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s; gravity on; no
       contacts or constraints.
     """
@@ -387,7 +411,7 @@ class HexapodOneLeg(Env[OneLegConfig]):
     def sample_params(self, key: jax.Array) -> HexapodParams:
         return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
-    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, jax.Array]:
+    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, OneLegExtras]:
         joint_key, target_key = jax.random.split(key)
         n = self.config.init_joint_noise
         qpos = jax.random.uniform(joint_key, (3,), minval=-n, maxval=n)
@@ -396,20 +420,36 @@ class HexapodOneLeg(Env[OneLegConfig]):
         target_q = fraction * JOINT_RANGE[:3]
         mocap = (leg_tip(target_q) + self._hip)[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(3), mocap_pos=mocap)
-        return data, target_q
+        return data, OneLegExtras(target_q=target_q)
 
     def target(self, data: mjx.Data) -> jax.Array:
         """The target in the hip's frame (m)."""
         return data.mocap_pos[0] - self._hip
 
-    def _act(self, data, extras, action, params):  # type: ignore[no-untyped-def]
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: OneLegExtras,
+        action: jax.Array,
+        params: HexapodParams,
+    ) -> tuple[mjx.Data, OneLegExtras]:
         model = self.sim.model_with(params.model)
         return self.sim.step(model, data, servo_targets(action)), extras
 
-    def _observe(self, data, extras, params):  # type: ignore[no-untyped-def]
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: OneLegExtras, params: HexapodParams
+    ) -> jax.Array:
         return jnp.concatenate([data.qpos, data.qvel, self.target(data)])
 
-    def _reward(self, prev, data, action, extras, params):  # type: ignore[no-untyped-def]
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: OneLegExtras,
+        params: HexapodParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
         err = leg_tip(data.qpos) - self.target(data)
         sq = jnp.sum(err * err)
-        return -sq, jnp.zeros((), bool), {"distance": jnp.sqrt(sq)}
+        return -sq, {"distance": jnp.sqrt(sq)}

@@ -27,23 +27,17 @@
 * Termination: none. Truncation: ``episode_length`` (50) steps.
 * Start: joint angles uniform in +-``init_angle_noise`` (0.1 rad), velocities uniform in
   +-``init_velocity_noise`` (0.005 rad/s), as Reacher-v5.
-* Timing: 0.02 s per control step as ONE Euler substep of 0.02 s (``substeps=1``).
-  Gymnasium runs two RK4 steps of 0.01 s. Measured over 20 random-action episodes
-  against RK4 at 1 ms (MuJoCo C, float64): Euler 1 x 0.02 s puts the fingertip 11 mm
-  off on average (53 mm worst) and moves an episode's summed distance by 0.07 (2% of
-  the solved threshold); Euler 2 x 0.01 s halves that (5.5 mm, 0.036) at half the
-  throughput. ``timestep=0.01, substeps=2`` selects it.
+* Timing: 0.02 s per control step as ONE Euler substep of 0.02 s (``substeps=1``;
+  Gymnasium runs two RK4 steps of 0.01 s). ``timestep=0.01, substeps=2`` halves the
+  integration error at half the throughput.
 * Physics: no contacts, no constraints, gravity off (no torque about vertical hinges),
   Euler with damping integrated implicitly, sparse mass matrix (``jacobian="sparse"``:
-  MJX factorises M with plain JAX ops; the dense path calls LAPACK's Cholesky per step,
-  and the batched env ran 1.2x faster sparse at 4096 envs and 1.35x at 16384 on the
-  2-core CPU, benchmarks/NOTES.md). Each physics step is ``mjx.step`` (checked against
-  ``mujoco.mj_step`` in ``tests/test_parity.py``). ``mjx.step`` leaves positions one
-  substep behind ``qpos``, so the fingertip is computed from ``qpos`` by the arm's planar
-  kinematics (:func:`planar_arm` reads the link offsets from the MJCF and refuses any
-  other robot; ``tests/test_reacher.py`` checks it against MuJoCo's site position). A reset
-  therefore needs no kinematics pass: its compile is 1.5-3 s instead of 6-8 s, and the
-  batched step's first call 4-5 s shorter.
+  MJX factorises M with plain JAX ops, no LAPACK call per step). Each physics step is
+  ``mjx.step`` (checked against ``mujoco.mj_step`` in ``tests/test_parity.py``).
+  ``mjx.step`` leaves positions one substep behind ``qpos``, so the fingertip is computed
+  from ``qpos`` by the arm's planar kinematics (:func:`planar_arm` reads the link offsets
+  from the MJCF and refuses any other robot; ``tests/test_reacher.py`` checks it against
+  MuJoCo's site position); a reset needs no kinematics pass.
 
 Params (``ReacherParams``): ``model`` holds the MJX model fields ``body_mass``,
 ``body_inertia``, ``dof_armature``, ``dof_damping`` and ``actuator_gear``;
@@ -69,7 +63,7 @@ from mujoco import mjx
 
 from jaxenvs import randomize
 from jaxenvs.config import require
-from jaxenvs.core import Env, TaskConfig
+from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots import robot_xml
 from jaxenvs.sim import Sim
@@ -176,7 +170,7 @@ class Reacher(Env[ReacherConfig]):
     """``Reacher-v0``: put the fingertip of a 2-link planar arm on a random target.
 
     See the module docstring for the full spec (observation layout, reward, timing).
-    ``extras`` is unused (the target lives in ``data.mocap_pos``).
+    ``extras`` is :class:`~jaxenvs.core.NoExtras` (the target lives in ``data.mocap_pos``).
     """
 
     #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
@@ -185,8 +179,6 @@ class Reacher(Env[ReacherConfig]):
     cpu_mjx_from = 4096
 
     metric_keys = ("distance", "ctrl_cost")
-    #: 2: 1.05x the env steps/s of 1 at 16,384 envs on the 2-core CPU for 3.5 s more
-    #: compile; 3 was 1.18x but its first call came within a second or two of 20 s.
     scan_unroll = 2
 
     def __init__(self, config: ReacherConfig | None = None) -> None:
@@ -245,7 +237,7 @@ class Reacher(Env[ReacherConfig]):
         phi = jax.random.uniform(angle_key, maxval=2 * math.pi)
         return jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi)])
 
-    def _init(self, key: jax.Array, params: ReacherParams) -> tuple[mjx.Data, None]:
+    def _init(self, key: jax.Array, params: ReacherParams) -> tuple[mjx.Data, NoExtras]:
         c = self.config
         angle_key, vel_key, target_key = jax.random.split(key, 3)
         qpos = jax.random.uniform(
@@ -256,11 +248,16 @@ class Reacher(Env[ReacherConfig]):
         )
         target = self.sample_target(target_key, params.target_radius)
         mocap = jnp.concatenate([target, jnp.full((1,), self._target_z)])[None]
-        return self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap), None
+        return self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap), NoExtras()
 
     def _act(
-        self, data: mjx.Data, extras: None, action: jax.Array, params: ReacherParams
-    ) -> tuple[mjx.Data, None]:
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: NoExtras,
+        action: jax.Array,
+        params: ReacherParams,
+    ) -> tuple[mjx.Data, NoExtras]:
         return self.sim.step(self.sim.model_with(params.model), data, action), extras
 
     def fingertip(self, data: mjx.Data) -> jax.Array:
@@ -268,7 +265,9 @@ class Reacher(Env[ReacherConfig]):
         q0, q1 = data.qpos[0], data.qpos[1]
         return self._base + _rotate(q0, self._link) + _rotate(q0 + q1, self._tip_offset)
 
-    def _observe(self, data: mjx.Data, extras: None, params: ReacherParams) -> jax.Array:
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: ReacherParams
+    ) -> jax.Array:
         target = data.mocap_pos[0, :2]
         q = data.qpos
         return jnp.concatenate(
@@ -280,10 +279,10 @@ class Reacher(Env[ReacherConfig]):
         prev: mjx.Data,
         data: mjx.Data,
         action: jax.Array,
-        extras: None,
+        extras: NoExtras,
         params: ReacherParams,
-    ) -> tuple[jax.Array, jax.Array, dict[str, jax.Array]]:
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
         distance = jnp.linalg.norm(self.fingertip(data) - data.mocap_pos[0, :2])
         ctrl_cost = self.config.ctrl_cost_weight * jnp.sum(jnp.square(action))
         reward = -distance - ctrl_cost
-        return reward, jnp.zeros((), bool), {"distance": distance, "ctrl_cost": ctrl_cost}
+        return reward, {"distance": distance, "ctrl_cost": ctrl_cost}
