@@ -4,11 +4,17 @@ Every task and agent has a frozen dataclass config. ``apply_overrides`` is the o
 place where user input (keyword overrides, YAML sections, command-line flags) meets a
 config: unknown keys, wrong types and impossible values raise :class:`ConfigError`
 naming the key and where it came from.
+
+Rules every config obeys, whatever its own ``validate`` adds: an integer setting fits in
+32 bits (what a compiled program computes with: a seed or a size beyond that would fail
+or wrap inside JAX), and a float setting is finite (no NaN, no infinity: a bound or rate
+of ``inf`` turns a check off silently, a NaN poisons every number it touches).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Mapping
@@ -18,6 +24,9 @@ from typing import Any, TypeVar
 import yaml
 
 C = TypeVar("C")
+
+#: the range of an integer setting (int32)
+INT_MIN, INT_MAX = -(2**31), 2**31 - 1
 
 
 class ConfigError(ValueError):
@@ -38,6 +47,8 @@ def _coerce(name: str, value: Any, hint: Any, source: str) -> Any:
                 return _coerce(name, value, arg, source)
             except ConfigError as err:
                 errors.append(str(err))
+        if len(errors) == 1:  # ``X | None``: X's own message says what is wrong
+            raise ConfigError(errors[0])
         raise ConfigError(f"{source}: key {name!r} expects {hint}, got {value!r}")
     if origin is typing.Literal:
         if value not in typing.get_args(hint):
@@ -63,11 +74,21 @@ def _coerce(name: str, value: Any, hint: Any, source: str) -> Any:
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{source}: key {name!r} expects an integer, got {value!r}")
+        if not INT_MIN <= value <= INT_MAX:
+            raise ConfigError(
+                f"{source}: key {name!r} must fit in 32 bits ({INT_MIN}..{INT_MAX}), got {value}"
+            )
         return value
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{source}: key {name!r} expects a number, got {value!r}")
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # an int too large for a float
+            number = math.inf
+        if not math.isfinite(number):
+            raise ConfigError(f"{source}: key {name!r} must be a finite number, got {value!r}")
+        return number
     if hint is str:
         if not isinstance(value, str):
             raise ConfigError(f"{source}: key {name!r} expects a string, got {value!r}")

@@ -13,14 +13,20 @@ caller-chosen name and config, the argument shapes, dtypes and tree structure, t
 versions of jax, jaxlib, mujoco, flax and optax, the backend and device kind, the x64
 flag, and a digest of every source and model file of the jaxenvs package. Anything else a
 program closes over must be in the caller's config (the runner only uses this for tasks
-defined in the package). A file that cannot be read back is reported, replaced and never
-trusted; writes are atomic. The file holds the serialised module and a JSON description
+defined in the package). The file holds the serialised module and a JSON description
 of the output's structure (no pickle): custom pytree nodes in the output are described by
 reference to example structures the caller passes in (``known``).
+
+Trust: every file carries its own key and a SHA-256 digest of its content, and is written
+atomically. A file that is truncated, altered, stored under another key's name, or whose
+module fails to deserialise or compile is discarded with one warning and the program is
+traced and stored again: a damaged store costs a trace, never a failed run or a wrong
+program.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -186,33 +192,78 @@ def _wrap(exported: Any, in_tree: Any, out_tree: Any, loaded: bool) -> Program:
     return Program(call, jax.tree.unflatten(out_tree, shapes), loaded)
 
 
-#: file layout: MAGIC, a little-endian u32 header length, the JSON header, the module
-MAGIC = b"jaxenvs-program-1\n"
+#: file layout: MAGIC, the SHA-256 digest (32 bytes) of everything after it, a
+#: little-endian u32 header length, the JSON header (name, key, output structure), the module
+MAGIC = b"jaxenvs-program-2\n"
+_DIGEST = 32
 
 
-def _read(path: Path, known: list[Any]) -> tuple[Any, Any] | None:
-    """(exported, out_tree) from ``path``, or ``None`` if it is absent or unreadable."""
-    if not path.exists():
-        return None
+class DamagedProgram(ValueError):
+    """A stored program file does not verify (truncated, altered, or another key's)."""
+
+
+def _pack(key: str, name: str, out: Any, module: bytes) -> bytes:
+    """The file content of a stored program (see :data:`MAGIC` for the layout)."""
+    header = json.dumps({"name": name, "key": key, "out": out}).encode()
+    body = struct.pack("<I", len(header)) + header + module
+    return MAGIC + hashlib.sha256(body).digest() + body
+
+
+def _unpack(blob: bytes, key: str) -> tuple[dict[str, Any], bytes]:
+    """``(header, module)`` of a file written by :func:`_pack` for ``key``.
+
+    Raises :class:`DamagedProgram` unless the magic, the digest and the key all match.
+    """
+    start = len(MAGIC) + _DIGEST
+    if not blob.startswith(MAGIC) or len(blob) < start + 4:
+        raise DamagedProgram("not a stored program of this version")
+    body = blob[start:]
+    if hashlib.sha256(body).digest() != blob[len(MAGIC) : start]:
+        raise DamagedProgram("digest mismatch (truncated or altered)")
+    (size,) = struct.unpack("<I", body[:4])
+    header = json.loads(body[4 : 4 + size])
+    if not isinstance(header, dict) or header.get("key") != key:
+        raise DamagedProgram("the file holds another key's program")
+    return header, body[4 + size :]
+
+
+def _read(blob: bytes, key: str, known: list[Any]) -> tuple[Any, Any]:
+    """``(exported, out_tree)`` of a stored file's content ``blob`` for ``key``; raises
+    when it does not verify or deserialise."""
+    header, module = _unpack(blob, key)
+    exported = jax.export.deserialize(bytearray(module))
+    example = _example(header["out"], known)
+    out_tree = jax.tree.structure(example)
+    if len(jax.tree.leaves(example)) != len(exported.out_avals):
+        raise DamagedProgram("output structure does not match the module")
+    return exported, out_tree
+
+
+def _load(path: Path, key: str, known: list[Any], in_tree: Any, shapes: Any) -> Program | None:
+    """The verified program stored at ``path``; ``None`` when there is none or it is
+    damaged (then the file is removed, with one warning).
+
+    The module is lowered here, not at the caller's first call, so that a module which
+    does not deserialise into StableHLO is caught by this fallback too.
+    """
     try:
         blob = path.read_bytes()
-        if not blob.startswith(MAGIC):
-            raise ValueError("not a stored program")
-        start = len(MAGIC) + 4
-        (size,) = struct.unpack("<I", blob[len(MAGIC) : start])
-        header = json.loads(blob[start : start + size])
-        exported = jax.export.deserialize(bytearray(blob[start + size :]))
-        example = _example(header["out"], known)
-        out_tree = jax.tree.structure(example)
-        if len(jax.tree.leaves(example)) != len(exported.out_avals):
-            raise ValueError("output structure does not match the module")
-        return exported, out_tree
-    except Exception as err:  # noqa: BLE001 - any damage means: trace again
+    except OSError:  # absent, or a store that cannot be read (its write will say so)
+        return None
+    try:
+        exported, out_tree = _read(blob, key, known)
+        program = _wrap(exported, in_tree, out_tree, loaded=True)
+        program.jitted.lower(*shapes)
+        return program
+    except Exception as err:  # noqa: BLE001 - any damage means: discard and trace again
+        detail = str(err).strip().splitlines()[0][:200] if str(err).strip() else ""
         warnings.warn(
-            f"ignoring unreadable stored program {path} ({type(err).__name__}: {err}); "
-            "tracing again",
+            f"discarding damaged stored program {path.name} ({type(err).__name__}: "
+            f"{detail}); tracing it again",
             stacklevel=3,
         )
+        with contextlib.suppress(OSError):
+            path.unlink()
         return None
 
 
@@ -245,15 +296,14 @@ def load_or_export(
     known_trees = [jax.tree.structure(k) for k in known]
     key = program_key(name, {"config": config, "known": [_aval_text(k) for k in known]}, args)
     path = directory / f"{name}-{key}.jaxexport"
-    stored = _read(path, known_trees)
-    if stored is not None:
-        return _wrap(stored[0], in_tree, stored[1], loaded=True)
     shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), args)
+    stored = _load(path, key, known_trees, in_tree, shapes)
+    if stored is not None:
+        return stored
     exported, out_tree = _export(fn, shapes)
     try:
-        header = json.dumps({"name": name, "out": _describe(out_tree, known_trees)}).encode()
+        blob = _pack(key, name, _describe(out_tree, known_trees), bytes(exported.serialize()))
         directory.mkdir(parents=True, exist_ok=True)
-        blob = MAGIC + struct.pack("<I", len(header)) + header + bytes(exported.serialize())
         files.write_bytes(path, blob)
     except (OSError, ImportError, _NotDescribable) as err:
         # the store only saves time; the program itself is fine. (Serialising needs the

@@ -7,10 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import requires
 
 import jaxenvs
 
-pytest.importorskip("brax", reason="the optional 'brax' extra is not installed")
+requires.package("brax", "pip install -e '.[brax]' (.ci/run installs it)")
 
 from brax.envs.base import Env as BraxBaseEnv  # noqa: E402
 from brax.envs.wrappers import training as brax_wrappers  # noqa: E402

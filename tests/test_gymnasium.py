@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import requires
 from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
@@ -348,8 +349,9 @@ def test_vector_episode_statistics_wrapper(short_vec):
 @pytest.mark.full
 def test_stable_baselines3_ppo_learns_cartpole():
     """The README's example: SB3's make_vec_env + PPO on the facade, evaluated greedily."""
-    sb3 = pytest.importorskip("stable_baselines3")
-    import torch
+    install = "pip install torch (a CPU build) and -e '.[bench-sb3]' (.ci/run does)"
+    sb3 = requires.package("stable_baselines3", install)
+    torch = requires.package("torch", install)
 
     torch.set_num_threads(1)
     from stable_baselines3.common.env_util import make_vec_env

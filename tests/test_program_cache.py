@@ -76,7 +76,7 @@ def test_damaged_file_is_traced_again(tmp_path):
     _store(tmp_path)
     (path,) = tmp_path.glob("walk-*.jaxexport")
     path.write_bytes(path.read_bytes()[:100])
-    with pytest.warns(UserWarning, match="unreadable stored program"):
+    with pytest.warns(UserWarning, match="damaged stored program"):
         again = _store(tmp_path)
     assert not again.loaded
     _same(again.call(*_args()), jax.jit(_walk)(*_args()))

@@ -162,17 +162,52 @@ def test_unknown_keys_are_named_with_the_source(key, value):
     assert "valid keys" in str(err.value)
 
 
+def _valid_values(key: str) -> list[object]:
+    """Values of ``key`` any PPO config accepts: the default as JSON gives it, and for a
+    number the default scaled a little (every numeric PPO field is a positive size, rate
+    or bound)."""
+    default = config_to_dict(ppo.PPOConfig())[key]
+    if isinstance(default, bool) or not isinstance(default, int | float):
+        return [default]
+    if isinstance(default, int):
+        return [default, default * 2]
+    return [default, min(default * 1.5, 1.0) if 0 < default <= 1 else default * 1.5]
+
+
+@pytest.mark.parametrize("key", sorted(PPO_FIELDS))
+def test_every_field_accepts_valid_values(key):
+    """The refusals below are meaningful only because the same parser accepts these."""
+    for value in _valid_values(key):
+        new = apply_overrides(ppo.PPOConfig(), {key: value}, "cli")
+        assert getattr(new, key) == (tuple(value) if isinstance(value, list) else value)
+
+
+def _json_type_fits(value: object, default: object) -> bool:
+    """Whether ``value`` (from JSON) has the type a field with ``default`` declares."""
+    if isinstance(default, bool):
+        return isinstance(value, bool)
+    if isinstance(default, float):
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if isinstance(default, int):
+        return isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(default, str):
+        return isinstance(value, str)
+    return True
+
+
 @FAST
 @given(key=st.sampled_from(sorted(PPO_FIELDS)), value=json_values)
 def test_any_value_is_accepted_typed_or_refused_by_name(key, value):
+    default = getattr(ppo.PPOConfig(), key)
     try:
         new = apply_overrides(ppo.PPOConfig(), {key: value}, "cli")
     except ConfigError as err:
         assert repr(key) in str(err) and "cli" in str(err)
+        assert value not in _valid_values(key)  # a valid value is never refused
         return
-    # accepted: the field has the declared type and the config still validates
+    # accepted: the value had the declared type, the field has it, the config validates
+    assert _json_type_fits(value, default), (key, value)
     got = getattr(new, key)
-    default = getattr(ppo.PPOConfig(), key)
     assert type(got) is type(default) or (isinstance(default, float) and type(got) is float)
     if isinstance(default, tuple):
         assert all(type(x) is int for x in got)

@@ -41,10 +41,17 @@ def trajectory(env):
     return run(jax.random.key(0))
 
 
-def test_backend_is_selected_and_renders():
+def test_backend_is_selected_and_renders(env, trajectory):
     backend = render.select_gl_backend()
     assert backend in ("egl", "osmesa", "glfw", "glx")
     assert render.select_gl_backend() == backend  # cached
+    # the selected backend draws the scene: a frame with content, and the pole's swing
+    # changes its pixels
+    first, last = (jax.tree.map(lambda x, t=t: x[t], trajectory) for t in (0, -1))
+    frames = render.render_frames(env, [first, last], width=W, height=H)
+    assert frames.shape == (2, H, W, 3) and frames.dtype == np.uint8
+    assert all(len(np.unique(f.reshape(-1, 3), axis=0)) > 4 for f in frames)
+    assert np.any(frames[0] != frames[1])
 
 
 def test_no_backend_error_names_packages(monkeypatch):

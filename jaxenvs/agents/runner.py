@@ -553,10 +553,17 @@ def _save_checkpoint(run: _Run, clock: _Clock, rs: RunState) -> None:
             "cpu_seconds": clock.cpu(),
             "top_lengths": rs.top.tolist(),
             "finished": rs.finished,
-            "env_id": run.resolved.env_id,
-            "algo": run.resolved.algo,
+            **_identity(run),
         },
     )
+
+
+def _identity(run: _Run) -> dict[str, Any]:
+    """What a checkpoint must match to be resumed by ``run``: env id, algorithm and the
+    config that config.yaml records (``train.video`` aside, which a resume may change)."""
+    record = dataclasses.replace(run.resolved, env=run.programs.env.config).to_dict()
+    record["train"].pop("video", None)
+    return {"env_id": run.resolved.env_id, "algo": run.resolved.algo, "config": record}
 
 
 def _start(run: _Run, clock: _Clock) -> RunState:
@@ -574,6 +581,10 @@ def _resume(run: _Run, clock: _Clock) -> tuple[RunState, _Clock]:
     """The committed state of the checkpoint, progress.csv's rows up to it, and the clock
     counting the seconds already spent."""
     state, meta = checkpoint.load(run.out / CHECKPOINT_FILE, run.template)
+    expected = _identity(run)
+    checkpoint.check_matches(
+        run.out / CHECKPOINT_FILE, {k: meta.get(k) for k in expected}, expected
+    )
     start = int(meta["chunk"])
     clock = dataclasses.replace(
         clock,
@@ -825,7 +836,10 @@ def restore(
     env, trainer = build(resolved)
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     template = jax.eval_shape(jax.vmap(trainer.init), keys)
-    state, _ = checkpoint.load(Path(run_dir) / CHECKPOINT_FILE, template)
+    path = Path(run_dir) / CHECKPOINT_FILE
+    state, meta = checkpoint.load(path, template)
+    expected = {"env_id": resolved.env_id, "algo": resolved.algo}
+    checkpoint.check_matches(path, {k: meta.get(k) for k in expected}, expected)
     return resolved, env, trainer, state
 
 

@@ -16,6 +16,7 @@ import sys
 from typing import Any
 
 from jaxenvs import files
+from jaxenvs.commands import checks
 
 HELP = "measure env steps/s over a batch sweep, optionally beside Gymnasium/EnvPool/MuJoCo"
 
@@ -70,6 +71,7 @@ def _validate(args: argparse.Namespace, ids: list[str]) -> list[str]:
     from jaxenvs import registry
     from jaxenvs.bench import MODES
 
+    checks.float_flag("--target-s", args.target_s, 1e-3, 3600.0)
     tasks = args.tasks or ids
     for task in tasks:
         registry.spec(task)  # unknown ids raise; "module:Id" imports module (registering Id)

@@ -26,8 +26,8 @@ def add(parser: argparse.ArgumentParser, physics_nargs: str | None = None) -> No
 
 def _positive(text: str) -> int:
     value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    if not 1 <= value <= 2**16:
+        raise argparse.ArgumentTypeError(f"must be an integer from 1 to 65536, got {text}")
     return value
 
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from jaxenvs.commands import engine_args
+from jaxenvs.commands import checks, engine_args
+from jaxenvs.config import INT_MAX
 
 HELP = "evaluate the greedy policy of a run directory (return mean/std, optional video)"
 
@@ -22,8 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from jaxenvs.agents import runner
 
-    if args.episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    checks.int_flag("--episodes", args.episodes, 1, 10**6)
+    checks.int_flag("--seed", args.seed, 0, INT_MAX - 1)  # the default is the run's seed + 1
     result = runner.evaluate_run(
         args.run_dir, args.episodes, args.seed, args.video, physics=args.physics
     )

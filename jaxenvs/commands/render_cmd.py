@@ -13,7 +13,7 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
-from jaxenvs.commands import engine_args
+from jaxenvs.commands import checks, engine_args
 
 HELP = "render a video of an env with random actions or a trained policy (--policy RUN_DIR)"
 
@@ -87,8 +87,11 @@ def run(args: argparse.Namespace) -> int:
     import jaxenvs
     from jaxenvs import render
 
-    if args.steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    checks.int_flag("--steps", args.steps, 1, 10**6)
+    checks.int_flag("--seed", args.seed, 0)
+    checks.int_flag("--width", args.width, 1, 8192)
+    checks.int_flag("--height", args.height, 1, 8192)
+    checks.float_flag("--fps", args.fps, 1e-3, 1e4)
     render.check_video_path(args.out)
     camera = int(args.camera) if args.camera is not None and args.camera.isdigit() else args.camera
     physics = {} if args.physics is None else {"physics": args.physics}

@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from jaxenvs.commands import engine_args
+from jaxenvs.commands import checks, engine_args
 
 HELP = "train an agent (qlearning, sarsa, ppo) and write its results to a run directory"
 
@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from jaxenvs.agents import runner
     from jaxenvs.cli import UserError
 
+    checks.int_flag("--devices", args.devices, 1, 2**16)
     if args.resume:
         given = ("env_id", "algo", "config", "out", "physics", *AGENT_FLAGS, *RUN_FLAGS)
         clash = [f for f in given if getattr(args, f) is not None]

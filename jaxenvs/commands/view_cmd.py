@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from jaxenvs.commands import checks
+
 HELP = "open MuJoCo's interactive viewer: drive the actuators by hand, --random or --policy"
 
 
@@ -44,8 +46,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not viewer.display_available():
         raise UserError(viewer.no_display_message(args.env_id))
-    if args.steps is not None and args.steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    checks.int_flag("--steps", args.steps, 1)
+    checks.int_flag("--seed", args.seed, 0)
     import jaxenvs
 
     act_fn = None
