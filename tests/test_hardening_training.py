@@ -120,8 +120,10 @@ def _ckpt(run_dir):
 
 
 def _same_checkpoint(a, b):
-    (la, sha_a), (lb, sha_b) = _ckpt(a), _ckpt(b)
-    assert sha_a == sha_b
+    # the checksum also covers the metadata record (format 2), which holds wall times:
+    # the same run gives the same leaves, not the same checksum
+    (la, _), (lb, _) = _ckpt(a), _ckpt(b)
+    assert len(la) == len(lb)
     for x, y in zip(la, lb, strict=True):
         np.testing.assert_array_equal(x, y)
 
