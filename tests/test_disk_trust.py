@@ -243,14 +243,23 @@ def _files(cache: Path) -> dict[str, tuple[int, int]]:
     }
 
 
+class Clean(NamedTuple):
+    cache: Path  # the directory the clean run used
+    template: Path  # a copy of what it left there
+    run: Run
+
+
 @pytest.fixture(scope="module")
-def clean(tmp_path_factory) -> tuple[Path, Run]:
-    """A clean run on a fresh cache directory, and that directory (kept as a template)."""
-    cache = tmp_path_factory.mktemp("clean-cache")
+def clean(tmp_path_factory) -> Clean:
+    """A clean run on a fresh cache directory, and a copy of what it stored. (JAX's keys
+    depend on the cache's path, so damaged copies are made at that same path.)"""
+    cache = tmp_path_factory.mktemp("clean-cache") / "cache"
     run = _train(cache, tmp_path_factory.mktemp("clean-run") / "run")
     assert not any(w in run.stderr for w in DAMAGE_WORDS), run.stderr
     assert len(list((cache / "programs").glob("*.jaxexport"))) == 3  # init, chunk, eval
-    return cache, run
+    template = cache.parent / "template"
+    shutil.copytree(cache, template)
+    return Clean(cache, template, run)
 
 
 def _flip(path: Path) -> None:
@@ -277,9 +286,9 @@ def _damaged_cache_heals(clean, tmp_path, damage) -> None:
     """A run on the damaged copy of the clean cache succeeds with the clean run's result
     and says what it discarded; the run after it loads what was rebuilt: no warning,
     the same result, and no stored file written again."""
-    template, reference = clean
-    cache = tmp_path / "cache"
-    shutil.copytree(template, cache)
+    cache, reference = clean.cache, clean.run
+    shutil.rmtree(cache)
+    shutil.copytree(clean.template, cache)
     damage(cache)
     healed = _train(cache, tmp_path / "healed")
     _same_result(healed, reference)
@@ -312,7 +321,7 @@ def _files_in(cache: Path) -> list[Path]:
 
 @pytest.mark.full
 def test_four_runs_at_once_on_one_fresh_cache(clean, tmp_path):
-    _, reference = clean
+    reference = clean.run
     cache = tmp_path / "cache"
     outs = [tmp_path / f"run{i}" for i in range(4)]
     procs = [_start(cache, out) for out in outs]
