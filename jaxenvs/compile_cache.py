@@ -31,13 +31,14 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
-import warnings
 from pathlib import Path
 from typing import Any
 
 import jax
 from jax._src import compilation_cache as _jax_cache
 from jax._src import lru_cache as _jax_lru
+
+from jaxenvs.program_cache import notice
 
 ENV_VAR = "JAXENVS_CACHE_DIR"
 #: the cache's size limit unless :func:`enable` is given another (least recently used
@@ -82,10 +83,9 @@ class VerifiedCache(_jax_lru.LRUCache):
             return None
         value = unseal(key, blob)
         if value is None:
-            warnings.warn(
+            notice(
                 f"discarding damaged compile-cache entry {key[:60]} in {self.path}; "
-                "compiling it again",
-                stacklevel=2,
+                "compiling it again"
             )
             self._remove(key)
         return value
@@ -117,7 +117,7 @@ def _verified_file_cache(path: str) -> tuple[Any, str] | None:
     try:
         return VerifiedCache(path, max_size=max_size), path
     except RuntimeError as err:  # filelock missing, or a remote file system
-        warnings.warn(f"compile cache unbounded and unlocked: {err}", stacklevel=2)
+        notice(f"compile cache unbounded and unlocked: {err}")
         return VerifiedCache(path, max_size=-1), path
 
 

@@ -294,6 +294,10 @@ def _damaged_cache_heals(clean, tmp_path, damage) -> None:
     _same_result(healed, reference)
     assert "discarding damaged stored program" in healed.stderr, healed.stderr
     assert "discarding damaged compile-cache entry" in healed.stderr, healed.stderr
+    # one line per discarded file, and nothing from JAX's own reader (which would mean an
+    # unverified entry was read)
+    lines = healed.stderr.splitlines()
+    assert all(line.startswith("jaxenvs:0: UserWarning: discarding") for line in lines[:-1]), lines
     before = _files(cache)
     after = _train(cache, tmp_path / "after")
     _same_result(after, reference)
