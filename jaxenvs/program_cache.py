@@ -78,6 +78,12 @@ def _environment() -> dict[str, Any]:
     }
 
 
+def notice(message: str) -> None:
+    """Warn with ``message`` as one line (a ``UserWarning`` from "jaxenvs", with no source
+    line after it): what a damaged or unwritable cache costs, never an error."""
+    warnings.warn_explicit(message, UserWarning, "jaxenvs", 0)
+
+
 def _aval_text(tree: Any) -> list[str]:
     """``path: dtype[shape]`` per leaf (the treedef's own text holds object addresses)."""
     leaves = jax.tree_util.tree_flatten_with_path(tree)[0]
@@ -257,10 +263,9 @@ def _load(path: Path, key: str, known: list[Any], in_tree: Any, shapes: Any) -> 
         return program
     except Exception as err:  # noqa: BLE001 - any damage means: discard and trace again
         detail = str(err).strip().splitlines()[0][:200] if str(err).strip() else ""
-        warnings.warn(
+        notice(
             f"discarding damaged stored program {path.name} ({type(err).__name__}: "
-            f"{detail}); tracing it again",
-            stacklevel=3,
+            f"{detail}); tracing it again"
         )
         with contextlib.suppress(OSError):
             path.unlink()
@@ -308,5 +313,5 @@ def load_or_export(
     except (OSError, ImportError, _NotDescribable) as err:
         # the store only saves time; the program itself is fine. (Serialising needs the
         # ``flatbuffers`` package, a dependency of jaxenvs.)
-        warnings.warn(f"could not store program {path}: {err}", stacklevel=2)
+        notice(f"could not store program {path}: {err}")
     return _wrap(exported, in_tree, out_tree, loaded=False)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import shutil
+import signal
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -162,3 +163,42 @@ def test_a_matching_resume_still_works(run_dir, tmp_path):
     shutil.copytree(run_dir, run)
     summary = runner.train(runner.load_run_config(run), run, resume=True, quiet=True)
     assert summary["chunks"] == 3 and not summary["interrupted"]
+
+
+# ----------------------------------------------------------------------------- Ctrl-C
+def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
+    """A real SIGINT while chunk 2 runs: chunk 2 is finished and committed (progress,
+    checkpoint), the notice says how to resume, and the resumed run ends where an
+    uninterrupted one does."""
+    whole = runner.train(_chain(), tmp_path / "whole", quiet=True)
+    real = runner._run_chunk
+    calls = {"n": 0}
+
+    def interrupted_during_second(run, clock, rs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            signal.raise_signal(signal.SIGINT)  # handled when Python next runs: mid-chunk
+        return real(run, clock, rs)
+
+    monkeypatch.setattr(runner, "_run_chunk", interrupted_during_second)
+    notices: list[str] = []
+    out = tmp_path / "stopped"
+    with pytest.raises(KeyboardInterrupt):
+        runner.train(_chain(), out, log=notices.append)
+    assert calls["n"] == 2  # no chunk started after the request
+    _, meta = checkpoint.read(out / runner.CHECKPOINT_FILE)
+    assert meta["metadata"]["chunk"] == 2
+    assert {int(r["chunk"]) for r in runner._read_progress(out / runner.PROGRESS_FILE)} == {0, 1}
+    summary = json.loads((out / runner.SUMMARY_FILE).read_text())
+    assert summary["interrupted"] and summary["chunks"] == 2
+    assert any("stopping after the running chunk" in n for n in notices), notices
+    assert any(f"jaxenvs train --resume {out}" in n for n in notices), notices
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    monkeypatch.setattr(runner, "_run_chunk", real)
+    resumed = runner.train(runner.load_run_config(out), out, resume=True, quiet=True)
+    assert resumed["eval_mean_return"] == whole["eval_mean_return"]
+    stopped_leaves, whole_leaves = (
+        checkpoint.read(d / runner.CHECKPOINT_FILE)[0] for d in (out, tmp_path / "whole")
+    )
+    for a, b in zip(stopped_leaves, whole_leaves, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -30,7 +30,9 @@ import functools
 import importlib
 import json
 import math
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -709,8 +711,10 @@ def train(
       devices: split each seed's env batch over the first N devices (``None``: all);
         ``num_envs`` must divide evenly.
 
-    Ctrl-C stops after the chunk in flight is discarded: the checkpoint of the last
-    finished chunk stays valid, and the results so far are written.
+    Ctrl-C waits for the chunk in flight (a compiled program cannot be stopped part
+    way), commits it (progress.csv, checkpoint), writes the results so far, says how to
+    resume and raises ``KeyboardInterrupt``. A second Ctrl-C stops at once, discarding
+    the chunk in flight: the checkpoint on disk stays the last committed chunk's.
     """
     clock = _Clock(time.perf_counter(), time.process_time())
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
@@ -727,25 +731,55 @@ def train(
         num_chunks * steps, rs.chunk * steps, quiet, f"{resolved.algo} {resolved.env_id}"
     )
     interrupted = False
-    # Ctrl-C inside _run_chunk discards the chunk in flight: ``rs`` stays the previous
-    # chunk's, which is exactly what the checkpoint on disk holds.
+    # A first Ctrl-C only asks to stop after the running chunk is committed. A second
+    # one (KeyboardInterrupt inside _run_chunk) discards the chunk in flight: ``rs``
+    # stays the previous chunk's, which is exactly what the checkpoint on disk holds.
     try:
-        while rs.chunk < stop and not rs.finished:
-            rs, metrics, seconds = _run_chunk(run, clock, rs)
-            bar.update(steps, _progress_postfix(metrics, seconds, steps * run.num_seeds))
+        with _StopRequest(say) as stop_request:
+            while rs.chunk < stop and not rs.finished and not stop_request.asked:
+                rs, metrics, seconds = _run_chunk(run, clock, rs)
+                bar.update(steps, _progress_postfix(metrics, seconds, steps * run.num_seeds))
+            interrupted = stop_request.asked
     except KeyboardInterrupt:
         interrupted = True
         _write_progress(out / PROGRESS_FILE, run.columns, rs.rows)
-        say(
-            f"interrupted: results and checkpoint are of chunk {rs.chunk}; resume with "
-            f"--resume {out}"
-        )
     finally:
         bar.close()
+    if interrupted:
+        say(
+            f"interrupted: results and checkpoint are of chunk {rs.chunk}/{num_chunks}; "
+            f"continue with: jaxenvs train --resume {out}"
+        )
     summary = _finish(run, clock, rs, interrupted)
     if interrupted:
         raise KeyboardInterrupt
     return summary
+
+
+class _StopRequest:
+    """While entered (in the main thread), the first SIGINT sets ``asked`` instead of
+    raising, so the loop can commit the running chunk and stop; a second one raises
+    ``KeyboardInterrupt`` as usual. Elsewhere it does nothing."""
+
+    def __init__(self, say: Callable[[str], None]) -> None:
+        self.asked = False
+        self._say = say
+        self._previous: Any = None
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.asked:
+            raise KeyboardInterrupt
+        self.asked = True
+        self._say("stopping after the running chunk is saved (Ctrl-C again: stop now)")
+
+    def __enter__(self) -> _StopRequest:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
 
 
 def _summary(

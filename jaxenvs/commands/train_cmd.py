@@ -93,7 +93,12 @@ def run(args: argparse.Namespace) -> int:
             resolved, train=dataclasses.replace(resolved.train, video=False)
         )
     _enable_compile_cache(args)  # only once the command is known to be valid
-    summary = runner.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
+    try:
+        summary = runner.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
+    except KeyboardInterrupt:
+        if args.quiet:  # the runner's notice was silenced; the way on is not
+            print(f"continue with: jaxenvs train --resume {out}", file=sys.stderr)
+        raise
     line = (
         f"{resolved.algo} on {resolved.env_id}: eval return {summary['eval_mean_return']:.1f} "
         f"+- {summary['eval_std_return']:.1f} ({summary['eval_episodes']} episodes), "
