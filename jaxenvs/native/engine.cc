@@ -168,16 +168,45 @@ struct Pool {  // one mjBatch of a thread count, grown to the largest batch seen
 
 struct Engine {
   mjModel* model = nullptr;
-  std::mutex mu;  // one call at a time: a batch's threads and scratch data are shared
-  std::map<int, Pool> pools;
+  // guards the maps below; a call holds it only to look up its plan and take a pool, so
+  // calls from several devices at once each step on a pool of their own
+  std::mutex mu;
+  std::map<int, std::vector<std::unique_ptr<Pool>>> idle;  // free pools by thread count
   std::map<std::string, Plan> plans;
   std::map<std::string, std::vector<mjtNum>> defaults;  // model values of params fields
   ~Engine() {
-    for (auto& [n, pool] : pools) {
-      if (pool.batch) mjb_deleteBatch(pool.batch);
+    for (auto& [n, pools] : idle) {
+      for (auto& pool : pools) {
+        if (pool->batch) mjb_deleteBatch(pool->batch);
+      }
     }
     if (model) mj_deleteModel(model);
   }
+};
+
+// A pool of nthread threads for one call, returned to the engine when the call ends.
+class PoolLease {
+ public:
+  PoolLease(Engine* e, int nthread) : e_(e), nthread_(nthread) {
+    std::lock_guard<std::mutex> lock(e->mu);
+    auto& pools = e->idle[nthread];
+    if (pools.empty()) {
+      pool_ = std::make_unique<Pool>();
+    } else {
+      pool_ = std::move(pools.back());
+      pools.pop_back();
+    }
+  }
+  ~PoolLease() {
+    std::lock_guard<std::mutex> lock(e_->mu);
+    e_->idle[nthread_].push_back(std::move(pool_));
+  }
+  Pool& operator*() { return *pool_; }
+
+ private:
+  Engine* e_;
+  int nthread_;
+  std::unique_ptr<Pool> pool_;
 };
 
 std::mutex registry_mu;
@@ -338,10 +367,13 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
             "physics='c' runs in a process that built that env first (jaxenvs.make).");
   }
   if (substeps < 0 || threads < 1) return Fail("substeps must be >= 0 and threads >= 1");
-  std::lock_guard<std::mutex> lock(e->mu);
-  auto planned = PlanFor(e, inputs, params, outputs);
-  if (planned.has_error()) return planned.error();
-  const Plan* plan = *planned;
+  const Plan* plan;
+  {
+    std::lock_guard<std::mutex> lock(e->mu);
+    auto planned = PlanFor(e, inputs, params, outputs);
+    if (planned.has_error()) return planned.error();
+    plan = *planned;
+  }
   size_t nin = plan->inputs.size(), npar = plan->params.size();
   if (args.size() != nin + npar || rets.size() != plan->outputs.size()) {
     return Fail("argument or result count does not match the call's field lists");
@@ -404,7 +436,8 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
       serial_work) {
     nthread = 1;
   }
-  Pool& pool = e->pools[nthread];
+  PoolLease lease(e, nthread);
+  Pool& pool = *lease;
   if (pool.nsim < nsim) {
     if (pool.batch) mjb_deleteBatch(pool.batch);
     mjBatchConfig config;
@@ -423,7 +456,12 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
   for (const std::string& name : pool.expanded) {
     if (given.count(name)) continue;
     auto* rows = static_cast<mjtNum*>(mjb_expand(pool.batch, name.c_str(), nullptr, nullptr));
-    const std::vector<mjtNum>& value = e->defaults[name];
+    const std::vector<mjtNum>* found;
+    {
+      std::lock_guard<std::mutex> lock(e->mu);
+      found = &e->defaults[name];  // std::map: the address stays valid
+    }
+    const std::vector<mjtNum>& value = *found;
     for (int64_t i = 0; i < nsim; ++i) {
       std::memcpy(rows + i * value.size(), value.data(), value.size() * sizeof(mjtNum));
     }
@@ -435,8 +473,11 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
     if (!rows || elem != static_cast<int>(sizeof(mjtNum))) {
       return Fail("params field '" + name + "' is not a floating-point mjModel field");
     }
-    if (!e->defaults.count(name)) {  // a fresh expansion holds the model's values
-      e->defaults[name] = std::vector<mjtNum>(rows, rows + size);
+    {
+      std::lock_guard<std::mutex> lock(e->mu);
+      if (!e->defaults.count(name)) {  // a fresh expansion holds the model's values
+        e->defaults[name] = std::vector<mjtNum>(rows, rows + size);
+      }
     }
     pool.expanded.insert(name);
     const ffi::AnyBuffer& buf = param_bufs[k];
