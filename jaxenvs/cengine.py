@@ -43,6 +43,7 @@ import contextlib
 import contextvars
 import dataclasses
 import functools
+import threading
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
@@ -400,6 +401,7 @@ class _Callback:
         self.layout = lay
         self._batches: dict[tuple[int, int], Any] = {}
         self._expanded: dict[int, set[str]] = {}
+        self._lock = threading.Lock()  # devices may call at once; the batches are shared
 
     def _batch(self, nsim: int, threads: int) -> Any:
         from mujoco import batch
@@ -411,6 +413,10 @@ class _Callback:
         return self._batches[key]
 
     def __call__(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
+        with self._lock:
+            return self._step(substeps, names, *arrays)
+
+    def _step(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
         from mujoco import batch as batch_module
 
         m, lay = self.model, self.layout

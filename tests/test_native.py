@@ -269,3 +269,33 @@ def test_native_off_runs_the_callback_and_says_so_in_one_line(tmp_path):
     assert "PATH callback" in done.stdout
     warning = [x for x in done.stderr.splitlines() if "Python callback" in x]
     assert len(warning) == 1 and "JAXENVS_NATIVE=0" in warning[0]
+
+
+_SPREAD_RUN = """
+import jax, jax.numpy as jnp, numpy as np, jaxenvs
+outs = []
+for devices in (2, 1):
+    b = jaxenvs.make("CartpoleBalance-v0", num_envs=8, physics="c", devices=devices,
+                     randomize=True)
+    def roll(key, b=b):
+        def body(s, k):
+            s = b.step(s, jax.random.uniform(k, (8, 1), minval=-1, maxval=1))
+            return s, (s.obs, s.reward, s.done, s.data.xpos)
+        return jax.lax.scan(body, b.reset(key), jax.random.split(key, 40))[1]
+    outs.append(jax.device_get(jax.jit(roll)(jax.random.key(0))))
+    print("DEVICES", b.devices)
+same = all(np.array_equal(x, y) for x, y in zip(outs[0], outs[1]))
+print("SAME", same)
+"""
+
+
+def test_a_c_batch_spread_over_two_devices_steps_as_on_one():
+    """Under C a batch spread over host devices calls the engine once per device on its
+    slice (shard_map): the trajectory is the one-device trajectory, bit for bit."""
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    done = subprocess.run(
+        [sys.executable, "-c", _SPREAD_RUN], capture_output=True, text=True, env=env, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "DEVICES 2" in done.stdout and "DEVICES 1" in done.stdout
+    assert "SAME True" in done.stdout
