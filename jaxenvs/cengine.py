@@ -39,13 +39,11 @@ per-simulation model fields of the batch: memory grows with threads, not with en
 
 from __future__ import annotations
 
-import contextlib
-import contextvars
 import dataclasses
 import functools
 import threading
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import jax
@@ -91,22 +89,6 @@ BAD_WARNINGS = tuple(
 #: below this many (envs x substeps x dofs) a batch is stepped on the calling thread (a
 #: hand-off to the pool costs about as much as 64 dof-steps of a small model)
 SERIAL_WORK = 64
-
-
-_CALL_THREADS: contextvars.ContextVar[int | None] = contextvars.ContextVar(
-    "jaxenvs_cengine_call_threads", default=None
-)
-
-
-@contextlib.contextmanager
-def threads_per_call(threads: int) -> Iterator[None]:
-    """C steps traced inside use ``threads`` threads a call (a batch spread over several
-    devices calls the engine once per device, each with its share of the threads)."""
-    token = _CALL_THREADS.set(max(1, int(threads)))
-    try:
-        yield
-    finally:
-        _CALL_THREADS.reset(token)
 
 
 class CEngineError(ValueError):
@@ -369,7 +351,7 @@ class CEngine:
                 *params,
                 model=self.key,
                 substeps=np.int64(substeps),
-                threads=np.int64(_CALL_THREADS.get() or self.threads),
+                threads=np.int64(self.threads),
                 serial_work=np.int64(SERIAL_WORK),
                 inputs=",".join(lay.inputs),
                 params=",".join(names),

@@ -477,11 +477,7 @@ class BatchedEnv:
         self.env = env
         self.num_envs = int(num_envs)
         self.randomize = bool(randomize)
-        physics = getattr(env, "physics", "mjx")
-        engine = getattr(getattr(env, "sim", None), "engine", None)
-        if physics == "c" and getattr(engine, "path", "native") != "native":
-            physics = "c-callback"  # the callback path keeps a batch on one device
-        n = batch_devices(self.num_envs, devices, physics)
+        n = batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
         #: the mesh the batch is spread over; ``None`` on one device
         self.mesh = None if n == 1 else Mesh(np.array(jax.local_devices()[:n]), (ENV_AXIS,))
 
@@ -503,14 +499,13 @@ class BatchedEnv:
         cross-device reduction, the auto-reset's ``any(done)``).
 
         One program over the mesh, not a ``shard_map``: every device takes the same
-        auto-reset decision. Under the C engine a ``shard_map`` instead: XLA cannot
-        partition the engine's call, so each device calls it on its own slice of envs
-        (with its share of the engine's threads) and resets its own finished envs.
+        auto-reset decision. (Under the C engine XLA does not partition the engine's
+        call: each device steps the whole batch. A ``shard_map`` that gives each device its
+        slice crashed XLA's CPU compiler in jax 0.11.2 with 8 host devices, so a C batch
+        stays on one device unless asked otherwise; see :func:`jaxenvs.devices.batch_devices`.)
         """
         if self.mesh is None:
             return fn(*args)
-        if getattr(self.env, "physics", "mjx") == "c":
-            return self._spread_c(fn, *args)
         split = NamedSharding(self.mesh, PartitionSpec(ENV_AXIS))
 
         def place(tree: Any) -> Any:
@@ -522,27 +517,6 @@ class BatchedEnv:
         # jit: inlined when the caller is traced; called eagerly, the task's constants
         # (committed to one device) become part of one program over the mesh
         return jax.jit(run)(*args)
-
-    def _spread_c(self, fn: Callable[..., Any], *args: Any) -> Any:
-        from jaxenvs import cengine
-
-        assert self.mesh is not None
-        split, whole = PartitionSpec(ENV_AXIS), PartitionSpec()
-        engine: Any = self.env.sim.engine  # type: ignore[attr-defined]  # a CSim under C
-        threads = max(1, engine.threads // self.mesh.size)
-
-        def local(first: Any, second: Any, rest: Any) -> Any:
-            with cengine.threads_per_call(threads):
-                return fn(first, second, rest)
-
-        mapped = jax.shard_map(
-            local,
-            mesh=self.mesh,
-            in_specs=(split, split, whole),
-            out_specs=split,
-            check_vma=False,
-        )
-        return jax.jit(mapped)(*args)
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")

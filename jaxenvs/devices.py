@@ -61,13 +61,13 @@ def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
 
     ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
     host devices, see :mod:`jaxenvs.machine`, or GPUs), or as many of them as
-    ``num_envs`` divides over evenly, with a warning when that is fewer; on the C
-    engine's callback path (``physics="c-callback"``) one. An explicit count must divide
+    ``num_envs`` divides over evenly, with a warning when that is fewer; under the C
+    engine one (its own threads spread the batch). An explicit count must divide
     ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.
     """
     available = jax.local_device_count()
     if devices is None:
-        if physics == "c-callback" or available == 1:
+        if physics == "c" or available == 1:
             return 1
         n = divisible_devices(num_envs, available)
         if n < available and num_envs >= available:

@@ -290,8 +290,8 @@ print("SAME", same)
 
 
 def test_a_c_batch_spread_over_two_devices_steps_as_on_one():
-    """Under C a batch spread over host devices calls the engine once per device on its
-    slice (shard_map): the trajectory is the one-device trajectory, bit for bit."""
+    """A C batch asked onto two host devices (the engine's calls from both run at once)
+    gives the one-device trajectory, bit for bit."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     done = subprocess.run(
         [sys.executable, "-c", _SPREAD_RUN], capture_output=True, text=True, env=env, timeout=300
