@@ -18,7 +18,7 @@ import pytest
 from tabular_fakes import fake_envs
 
 from jaxenvs import cli
-from jaxenvs.agents import checkpoint, runner
+from jaxenvs.agents import checkpoint, loop, runner
 from jaxenvs.agents.checkpoint import CheckpointError
 
 
@@ -171,7 +171,7 @@ def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
     checkpoint), the notice says how to resume, and the resumed run ends where an
     uninterrupted one does."""
     whole = runner.train(_chain(), tmp_path / "whole", quiet=True)
-    real = runner._run_chunk
+    real = loop._run_chunk
     calls = {"n": 0}
 
     def interrupted_during_second(run, clock, rs):
@@ -180,7 +180,7 @@ def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
             signal.raise_signal(signal.SIGINT)  # handled when Python next runs: mid-chunk
         return real(run, clock, rs)
 
-    monkeypatch.setattr(runner, "_run_chunk", interrupted_during_second)
+    monkeypatch.setattr(loop, "_run_chunk", interrupted_during_second)
     notices: list[str] = []
     out = tmp_path / "stopped"
     with pytest.raises(KeyboardInterrupt):
@@ -194,7 +194,7 @@ def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
     assert any("stopping after the running chunk" in n for n in notices), notices
     assert any(f"jaxenvs train --resume {out}" in n for n in notices), notices
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
-    monkeypatch.setattr(runner, "_run_chunk", real)
+    monkeypatch.setattr(loop, "_run_chunk", real)
     resumed = runner.train(runner.load_run_config(out), out, resume=True, quiet=True)
     assert resumed["eval_mean_return"] == whole["eval_mean_return"]
     stopped_leaves, whole_leaves = (

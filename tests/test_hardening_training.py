@@ -19,7 +19,7 @@ import pytest
 import yaml
 from tabular_fakes import fake_envs
 
-from jaxenvs.agents import checkpoint, runner
+from jaxenvs.agents import checkpoint, loop, programs, runner
 
 TIMING = ("wall_seconds", "cpu_seconds")
 
@@ -80,7 +80,7 @@ def traces():
         )
 
     with pytest.MonkeyPatch.context() as mp, fake_envs():
-        mp.setattr(runner, "build", build)
+        mp.setattr(programs, "build", build)  # what build_programs calls
         yield counts
 
 
@@ -92,7 +92,7 @@ def _resolved(tmp_path_factory, data, name):
 
 def _interrupt_at(monkeypatch, n):
     """Ctrl-C inside the runner right after chunk ``n`` is computed, before it commits."""
-    real = runner._write_progress
+    real = loop.write_progress
     calls = {"n": 0}
 
     def write(*args):
@@ -101,7 +101,7 @@ def _interrupt_at(monkeypatch, n):
             raise KeyboardInterrupt
         real(*args)
 
-    monkeypatch.setattr(runner, "_write_progress", write)
+    monkeypatch.setattr(loop, "write_progress", write)
     return real
 
 
@@ -154,7 +154,7 @@ def test_ppo_ctrl_c_then_resume_gives_the_same_results(ppo, tmp_path, monkeypatc
         runner.train(resolved, tmp_path, quiet=True)
     partial = json.loads((tmp_path / runner.SUMMARY_FILE).read_text())
     assert partial["interrupted"] and partial["chunks"] == 1
-    monkeypatch.setattr(runner, "_write_progress", real)
+    monkeypatch.setattr(loop, "write_progress", real)
     summary = runner.train(runner.load_run_config(tmp_path), tmp_path, resume=True, quiet=True)
     assert _figures(summary) == _figures(summary_a)
     assert _rows(out_a) == _rows(tmp_path)
@@ -196,7 +196,7 @@ def test_tabular_resume_after_any_chunk(chain, tmp_path, monkeypatch, write):
     leaves, meta = checkpoint.read(tmp_path / runner.CHECKPOINT_FILE)
     assert meta["metadata"]["chunk"] == write - 1
     assert json.loads((tmp_path / runner.SUMMARY_FILE).read_text())["chunks"] == write - 1
-    monkeypatch.setattr(runner, "_write_progress", real)
+    monkeypatch.setattr(loop, "write_progress", real)
     summary = runner.train(runner.load_run_config(tmp_path), tmp_path, resume=True, quiet=True)
     assert _figures(summary) == _figures(summary_a)
     assert _rows(out_a) == _rows(tmp_path)

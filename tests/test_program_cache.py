@@ -11,7 +11,7 @@ import pytest
 from tabular_fakes import fake_envs
 
 from jaxenvs import compile_cache, program_cache
-from jaxenvs.agents import checkpoint, runner
+from jaxenvs.agents import checkpoint, programs, runner
 
 
 class Carry(NamedTuple):
@@ -106,7 +106,7 @@ def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch)
     # the persistent compile cache stays off (process-wide); only the program store is on,
     # for the physics-free chain task of the test fakes (fast to compile)
     monkeypatch.setattr(compile_cache, "active", lambda: tmp_path / "cache")
-    monkeypatch.setattr(runner, "_STORE_MODULES", ("jaxenvs.", "tabular_fakes"))
+    monkeypatch.setattr(programs, "STORE_MODULES", ("jaxenvs.", "tabular_fakes"))
     loaded: list[bool] = []
     real = program_cache.load_or_export
 

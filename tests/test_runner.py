@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from tabular_fakes import fake_envs
 
-from jaxenvs.agents import checkpoint, runner
+from jaxenvs.agents import checkpoint, loop, runner
 from jaxenvs.agents.checkpoint import CheckpointError
+from jaxenvs.config import config_to_dict
 
 METRIC_COLUMNS = ("chunk", "seed", "env_steps", "episodes", "mean_return", "max_return")
 
@@ -100,7 +101,7 @@ def test_ctrl_c_leaves_a_valid_checkpoint_and_results(full_run, tmp_path, monkey
     out_a, summary_a = full_run
     out = tmp_path / "c"
     calls = {"n": 0}
-    real_write = runner._write_progress
+    real_write = loop.write_progress
 
     def interrupt_on_third(*args):
         calls["n"] += 1
@@ -108,12 +109,12 @@ def test_ctrl_c_leaves_a_valid_checkpoint_and_results(full_run, tmp_path, monkey
             raise KeyboardInterrupt
         real_write(*args)
 
-    monkeypatch.setattr(runner, "_write_progress", interrupt_on_third)
+    monkeypatch.setattr(loop, "write_progress", interrupt_on_third)
     with pytest.raises(KeyboardInterrupt):
         runner.train(_chain_config(), out, quiet=True)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["interrupted"] and summary["chunks"] == 2
-    monkeypatch.setattr(runner, "_write_progress", real_write)
+    monkeypatch.setattr(loop, "write_progress", real_write)
     final = runner.train(runner.load_run_config(out), out, resume=True, quiet=True)
     for a, b in zip(_leaves(out_a), _leaves(out), strict=True):
         np.testing.assert_array_equal(a, b)
@@ -158,7 +159,7 @@ def test_checkpoint_of_another_config_is_refused(full_run, tmp_path):
     out_a, _ = full_run
     other = _chain_config()
     bigger = runner.resolve_config(
-        "Test-Chain-v0", "qlearning", None, {**runner.config_to_dict(other.agent), "num_envs": 3}
+        "Test-Chain-v0", "qlearning", None, {**config_to_dict(other.agent), "num_envs": 3}
     )
     env, trainer = runner.build(bigger)
     template = jax.eval_shape(jax.vmap(trainer.init), runner.seed_keys(0, 2))

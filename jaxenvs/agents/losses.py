@@ -1,7 +1,8 @@
-"""Pure PPO math: generalised advantage estimation and the clipped losses.
+"""Pure PPO math: generalised advantage estimation, the clipped losses and their sum.
 
 Every function here is a pure function of arrays (no networks, no env), so each can be
-checked against small hand-computed cases (``tests/test_ppo.py``).
+checked against small hand-computed cases (``tests/test_ppo.py``,
+``tests/test_ppo_pieces.py``).
 """
 
 from __future__ import annotations
@@ -76,3 +77,46 @@ def approx_kl(log_prob: jax.Array, old_log_prob: jax.Array) -> jax.Array:
     """The low-variance estimator ``mean((r - 1) - log r)`` of KL(old || new)."""
     log_ratio = log_prob - old_log_prob
     return jnp.mean(jnp.expm1(log_ratio) - log_ratio)
+
+
+def ppo_loss(
+    log_prob: jax.Array,
+    old_log_prob: jax.Array,
+    advantages: jax.Array,
+    values: jax.Array,
+    old_values: jax.Array,
+    returns: jax.Array,
+    entropy: jax.Array,
+    *,
+    clip_eps: float,
+    clip_value: bool,
+    vf_coef: float,
+    ent_coef: float,
+    normalize_adv: bool,
+) -> tuple[jax.Array, dict[str, jax.Array]]:
+    """The PPO objective of one minibatch and its parts.
+
+    All array inputs have one entry per sample: the new and the behaviour policy's log
+    probabilities of the actions taken, the advantages, the new and the behaviour values,
+    the returns (value targets) and the new policy's entropies. With ``normalize_adv``
+    the advantages are normalised over the minibatch first; ``clip_value`` clips the value
+    update with ``clip_eps`` as well (see :func:`value_loss`)::
+
+        total = policy_loss + vf_coef * value_loss - ent_coef * mean(entropy)
+
+    Returns ``(total, {"policy_loss", "value_loss", "entropy", "approx_kl"})``, where
+    ``entropy`` is the mean entropy.
+    """
+    if normalize_adv:
+        advantages = normalize_advantages(advantages)
+    pi_loss = policy_loss(log_prob, old_log_prob, advantages, clip_eps)
+    v_loss = value_loss(values, old_values, returns, clip_eps if clip_value else None)
+    mean_entropy = entropy.mean()
+    total = pi_loss + vf_coef * v_loss - ent_coef * mean_entropy
+    aux = {
+        "policy_loss": pi_loss,
+        "value_loss": v_loss,
+        "entropy": mean_entropy,
+        "approx_kl": approx_kl(log_prob, old_log_prob),
+    }
+    return total, aux

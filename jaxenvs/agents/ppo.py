@@ -259,18 +259,9 @@ def make_network(env: Env, config: PPOConfig) -> ActorCritic:
     )
 
 
-def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
-    """The PPO :class:`Trainer` of ``env`` (a single env; a batched one is unwrapped)."""
-    config.validate()
-    single: Env = env.env if isinstance(env, BatchedEnv) else env
-    # one device here: the runner spreads the whole training state (jaxenvs.sharding)
-    benv = BatchedEnv(single, config.num_envs, randomize=config.randomize, devices=1)
-    net = make_network(single, config)
-    head = CATEGORICAL if single.discrete else GAUSSIAN
-
-    def apply(params: PyTree, obs: jax.Array) -> tuple[Any, jax.Array]:
-        return net.apply(params, obs)  # type: ignore[return-value]
-
+def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
+    """Adam (eps 1e-5) after global-norm gradient clipping; with ``anneal_lr`` its step
+    size falls linearly to zero over every gradient step of the run."""
     c = config
     total_grad_steps = c.num_chunks * c.updates_per_chunk * c.update_epochs * c.num_minibatches
     lr: float | optax.Schedule = (
@@ -278,41 +269,91 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
         if c.anneal_lr
         else c.learning_rate
     )
-    tx = optax.chain(optax.clip_by_global_norm(c.max_grad_norm), optax.adam(lr, eps=1e-5))
-    obs_dim = single.observation_size
+    return optax.chain(optax.clip_by_global_norm(c.max_grad_norm), optax.adam(lr, eps=1e-5))
 
-    def norm_obs(stats: RunningStats, obs: jax.Array) -> jax.Array:
-        return normalize(stats, obs, c.obs_clip) if c.normalize_obs else obs
 
-    def init(key: jax.Array) -> RunnerState:
-        net_key, env_key, run_key = jax.random.split(key, 3)
-        params = net.init(net_key, jnp.zeros((obs_dim,), jnp.float32))
-        env_state = benv.reset(env_key)
-        obs_stats = stats_init((obs_dim,))
-        if c.normalize_obs:
-            obs_stats = stats_update(obs_stats, env_state.obs)
-        return RunnerState(
-            params=params,
-            opt_state=tx.init(params),
-            obs_stats=obs_stats,
-            ret_stats=stats_init(()),
-            disc_return=jnp.zeros((c.num_envs,), jnp.float32),
-            env_state=env_state,
-            key=run_key,
-            env_steps=jnp.zeros((), jnp.int32),
-            episodes=jnp.zeros((), jnp.int32),
-            updates=jnp.zeros((), jnp.int32),
-        )
+def shuffle_minibatches(key: jax.Array, data: PyTree, num_minibatches: int) -> PyTree:
+    """One epoch's minibatches of a time-major rollout.
+
+    Every leaf of ``data`` has shape ``(T, N, ...)``. Its ``T * N`` samples are flattened,
+    shuffled by ONE permutation drawn from ``key`` (the same for every leaf, so a sample's
+    fields stay together) and cut into ``num_minibatches`` equal minibatches: every leaf
+    becomes ``(num_minibatches, T * N // num_minibatches, ...)``, and each sample appears
+    exactly once. ``num_minibatches`` must divide ``T * N``.
+    """
+    first = jax.tree.leaves(data)[0]
+    n = first.shape[0] * first.shape[1]
+
+    perm = jax.random.permutation(key, n)
+
+    def split(x: jax.Array) -> jax.Array:
+        x = x.reshape((n, *x.shape[2:]))[perm]
+        return x.reshape((num_minibatches, n // num_minibatches, *x.shape[1:]))
+
+    return jax.tree.map(split, data)
+
+
+def episode_stats(traj: Transition) -> dict[str, jax.Array]:
+    """The episodes that ended in a rollout: their number ``n``, the sum and maximum of
+    their returns, the sum of their lengths, and the steps that diverged."""
+    done = traj.done
+    return {
+        "n": done.sum(),
+        "ret_sum": jnp.sum(jnp.where(done, traj.final_return, 0.0)),
+        "ret_max": jnp.max(jnp.where(done, traj.final_return, -jnp.inf)),
+        "len_sum": jnp.sum(jnp.where(done, traj.final_length, 0)),
+        "diverged": jnp.sum(traj.diverged).astype(jnp.int32),
+    }
+
+
+#: the loss figures a chunk reports (those of its last update)
+LOSS_METRICS = ("loss", "policy_loss", "value_loss", "entropy", "approx_kl")
+
+
+def chunk_metrics(rs: RunnerState, m: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    """A chunk's metrics from the state after it and its updates' :func:`episode_stats`
+    and loss figures stacked over updates (means are NaN when no episode ended)."""
+    n = m["n"].sum()
+    nan = jnp.asarray(jnp.nan, jnp.float32)
+    return {
+        "env_steps": rs.env_steps,
+        "episodes": rs.episodes,
+        "mean_return": jnp.where(n > 0, m["ret_sum"].sum() / jnp.maximum(n, 1), nan),
+        "max_return": jnp.where(n > 0, m["ret_max"].max(), nan),
+        "mean_length": jnp.where(n > 0, m["len_sum"].sum() / jnp.maximum(n, 1), nan),
+        "episodes_in_chunk": n.astype(jnp.int32),
+        "diverged": m["diverged"].sum(),
+        **{k: m[k][-1] for k in LOSS_METRICS},
+    }
+
+
+def apply_net(net: ActorCritic, params: PyTree, obs: jax.Array) -> tuple[Any, jax.Array]:
+    """The network's ``(policy output, value)`` of ``obs``."""
+    return net.apply(params, obs)  # type: ignore[return-value]
+
+
+def observe(stats: RunningStats, obs: jax.Array, config: PPOConfig) -> jax.Array:
+    """What the policy sees of ``obs``: normalised and clipped with ``stats`` when
+    ``normalize_obs``, else ``obs`` itself."""
+    return normalize(stats, obs, config.obs_clip) if config.normalize_obs else obs
+
+
+def make_env_step(
+    benv: BatchedEnv, net: ActorCritic, head: PolicyHead, config: PPOConfig
+) -> Callable[[RunnerState, jax.Array], tuple[RunnerState, Transition]]:
+    """``env_step(rs, key) -> (rs, transition)``: one step of every env of ``benv`` under
+    the behaviour policy, with the observation and reward statistics it updates."""
+    c = config
 
     def env_step(rs: RunnerState, key: jax.Array) -> tuple[RunnerState, Transition]:
-        obs = norm_obs(rs.obs_stats, rs.env_state.obs)
-        out, value = apply(rs.params, obs)
+        obs = observe(rs.obs_stats, rs.env_state.obs, c)
+        out, value = apply_net(net, rs.params, obs)
         action = head.sample(out, key)
         logp = head.log_prob(out, action)
-        env_action = action if single.discrete else jnp.clip(action, -1.0, 1.0)
+        env_action = action if benv.env.discrete else jnp.clip(action, -1.0, 1.0)
         nxt = benv.step(rs.env_state, env_action)
         obs_stats = stats_update(rs.obs_stats, nxt.obs) if c.normalize_obs else rs.obs_stats
-        _, next_value = apply(rs.params, norm_obs(obs_stats, nxt.info["final_obs"]))
+        _, next_value = apply_net(net, rs.params, observe(obs_stats, nxt.info["final_obs"], c))
         reward = nxt.reward * c.reward_scale
         disc_return = rs.disc_return * c.gamma + reward
         ret_stats = rs.ret_stats
@@ -341,26 +382,47 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
         )
         return rs, trans
 
-    def loss_fn(params: PyTree, batch: Transition, adv: jax.Array, ret: jax.Array):  # type: ignore[no-untyped-def]
-        out, value = apply(params, batch.obs)
+    return env_step
+
+
+#: an epoch's carry: network params, optimiser state, and the rollout
+#: ``(transitions, advantages, returns)`` it passes over
+EpochCarry = tuple[PyTree, PyTree, tuple[Transition, jax.Array, jax.Array]]
+
+
+def make_epoch(
+    net: ActorCritic, head: PolicyHead, tx: optax.GradientTransformation, config: PPOConfig
+) -> Callable[[EpochCarry, jax.Array], tuple[EpochCarry, dict[str, jax.Array]]]:
+    """``epoch(carry, key) -> (carry, stats)``: one pass over a rollout in
+    :func:`shuffle_minibatches` order, one gradient step of :func:`losses.ppo_loss` per
+    minibatch; ``stats`` holds each step's loss figures."""
+    c = config
+
+    def loss_fn(
+        params: PyTree, batch: Transition, adv: jax.Array, ret: jax.Array
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
+        out, value = apply_net(net, params, batch.obs)
         logp = head.log_prob(out, batch.action)
-        if c.normalize_advantages:
-            adv = losses.normalize_advantages(adv)
-        pi_loss = losses.policy_loss(logp, batch.log_prob, adv, c.clip_eps)
-        v_loss = losses.value_loss(value, batch.value, ret, c.clip_eps if c.clip_value else None)
-        entropy = head.entropy(out).mean()
-        total = pi_loss + c.vf_coef * v_loss - c.ent_coef * entropy
-        aux = {
-            "policy_loss": pi_loss,
-            "value_loss": v_loss,
-            "entropy": entropy,
-            "approx_kl": losses.approx_kl(logp, batch.log_prob),
-        }
-        return total, aux
+        return losses.ppo_loss(
+            logp,
+            batch.log_prob,
+            adv,
+            value,
+            batch.value,
+            ret,
+            head.entropy(out),
+            clip_eps=c.clip_eps,
+            clip_value=c.clip_value,
+            vf_coef=c.vf_coef,
+            ent_coef=c.ent_coef,
+            normalize_adv=c.normalize_advantages,
+        )
 
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
-    def sgd_step(carry, mb):  # type: ignore[no-untyped-def]
+    def sgd_step(
+        carry: tuple[PyTree, PyTree], mb: tuple[Transition, jax.Array, jax.Array]
+    ) -> tuple[tuple[PyTree, PyTree], dict[str, jax.Array]]:
         params, opt_state = carry
         batch, adv, ret = mb
         (loss, aux), grads = grad_fn(params, batch, adv, ret)
@@ -368,18 +430,48 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
         params = optax.apply_updates(params, updates)
         return (params, opt_state), {"loss": loss, **aux}
 
-    def epoch(carry, key):  # type: ignore[no-untyped-def]
+    def epoch(carry: EpochCarry, key: jax.Array) -> tuple[EpochCarry, dict[str, jax.Array]]:
         params, opt_state, data = carry
-        n = c.steps_per_update
-        perm = jax.random.permutation(key, n)
-
-        def split(x: jax.Array) -> jax.Array:
-            x = x.reshape((n, *x.shape[2:]))[perm]
-            return x.reshape((c.num_minibatches, n // c.num_minibatches, *x.shape[1:]))
-
-        minibatches = jax.tree.map(split, data)
+        minibatches = shuffle_minibatches(key, data, c.num_minibatches)
         (params, opt_state), stats = jax.lax.scan(sgd_step, (params, opt_state), minibatches)
         return (params, opt_state, data), stats
+
+    return epoch
+
+
+def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
+    """The PPO :class:`Trainer` of ``env`` (a single env; a batched one is unwrapped)."""
+    config.validate()
+    single: Env = env.env if isinstance(env, BatchedEnv) else env
+    # one device here: the runner spreads the whole training state (jaxenvs.sharding)
+    benv = BatchedEnv(single, config.num_envs, randomize=config.randomize, devices=1)
+    net = make_network(single, config)
+    head = CATEGORICAL if single.discrete else GAUSSIAN
+    c = config
+    tx = make_optimizer(c)
+    obs_dim = single.observation_size
+    env_step = make_env_step(benv, net, head, c)
+    epoch = make_epoch(net, head, tx, c)
+
+    def init(key: jax.Array) -> RunnerState:
+        net_key, env_key, run_key = jax.random.split(key, 3)
+        params = net.init(net_key, jnp.zeros((obs_dim,), jnp.float32))
+        env_state = benv.reset(env_key)
+        obs_stats = stats_init((obs_dim,))
+        if c.normalize_obs:
+            obs_stats = stats_update(obs_stats, env_state.obs)
+        return RunnerState(
+            params=params,
+            opt_state=tx.init(params),
+            obs_stats=obs_stats,
+            ret_stats=stats_init(()),
+            disc_return=jnp.zeros((c.num_envs,), jnp.float32),
+            env_state=env_state,
+            key=run_key,
+            env_steps=jnp.zeros((), jnp.int32),
+            episodes=jnp.zeros((), jnp.int32),
+            updates=jnp.zeros((), jnp.int32),
+        )
 
     def update(rs: RunnerState, _: None) -> tuple[RunnerState, dict[str, jax.Array]]:
         key, rollout_key, epoch_key = jax.random.split(rs.key, 3)
@@ -399,46 +491,26 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
             (rs.params, rs.opt_state, (traj, adv, ret)),
             jax.random.split(epoch_key, c.update_epochs),
         )
-        done = traj.done
-        n_done = done.sum()
-        ep = {
-            "n": n_done,
-            "ret_sum": jnp.sum(jnp.where(done, traj.final_return, 0.0)),
-            "ret_max": jnp.max(jnp.where(done, traj.final_return, -jnp.inf)),
-            "len_sum": jnp.sum(jnp.where(done, traj.final_length, 0)),
-            "diverged": jnp.sum(traj.diverged).astype(jnp.int32),
-        }
+        ep = episode_stats(traj)
         rs = rs._replace(
             params=params,
             opt_state=opt_state,
             env_steps=rs.env_steps + c.steps_per_update,
-            episodes=rs.episodes + n_done.astype(jnp.int32),
+            episodes=rs.episodes + ep["n"].astype(jnp.int32),
             updates=rs.updates + 1,
         )
         return rs, {**ep, **{k: v[-1].mean() for k, v in stats.items()}}
 
     def chunk(rs: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
         rs, m = jax.lax.scan(update, rs, None, length=c.updates_per_chunk)
-        n = m["n"].sum()
-        nan = jnp.asarray(jnp.nan, jnp.float32)
-        metrics = {
-            "env_steps": rs.env_steps,
-            "episodes": rs.episodes,
-            "mean_return": jnp.where(n > 0, m["ret_sum"].sum() / jnp.maximum(n, 1), nan),
-            "max_return": jnp.where(n > 0, m["ret_max"].max(), nan),
-            "mean_length": jnp.where(n > 0, m["len_sum"].sum() / jnp.maximum(n, 1), nan),
-            "episodes_in_chunk": n.astype(jnp.int32),
-            "diverged": m["diverged"].sum(),
-            **{k: m[k][-1] for k in ("loss", "policy_loss", "value_loss", "entropy", "approx_kl")},
-        }
-        return rs, metrics
+        return rs, chunk_metrics(rs, m)
 
     def policy_params(rs: RunnerState) -> PolicyParams:
         return PolicyParams(rs.params, rs.obs_stats)
 
     def act(pp: PolicyParams, obs: jax.Array, key: jax.Array) -> jax.Array:
         del key  # the greedy policy is deterministic
-        out, _ = apply(pp.params, norm_obs(pp.obs_stats, obs))
+        out, _ = apply_net(net, pp.params, observe(pp.obs_stats, obs, c))
         return head.mode(out)
 
     return Trainer(
@@ -457,5 +529,11 @@ __all__ = [
     "PPOConfig",
     "PolicyParams",
     "RunnerState",
+    "chunk_metrics",
+    "episode_stats",
+    "make_env_step",
+    "make_epoch",
+    "make_optimizer",
     "make_trainer",
+    "shuffle_minibatches",
 ]

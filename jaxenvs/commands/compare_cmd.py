@@ -16,19 +16,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxenvs.agents import runner
+    from jaxenvs.agents import results, run_config
 
     dirs = [Path(d) for d in args.run_dirs]
     for d in dirs:
-        if not (d / runner.PROGRESS_FILE).is_file():
-            raise ValueError(f"{d} is not a run directory (no {runner.PROGRESS_FILE})")
+        if not (d / run_config.PROGRESS_FILE).is_file():
+            raise ValueError(f"{d} is not a run directory (no {run_config.PROGRESS_FILE})")
     if args.labels and len(args.labels) != len(dirs):
         raise ValueError(f"--labels needs {len(dirs)} labels, got {len(args.labels)}")
-    out = runner.plot_curves(dirs, args.out, args.labels)
+    out = results.plot_curves(dirs, args.out, args.labels)
     print(f"{'run':40s} {'eval return':>14s} {'steps':>10s} {'overall':>8s} {'best100':>8s}")
     for d in dirs:
         try:
-            s = json.loads((d / runner.SUMMARY_FILE).read_text())
+            s = json.loads((d / run_config.SUMMARY_FILE).read_text())
         except (OSError, ValueError):
             print(f"{str(d):40s} (no summary yet)")
             continue

@@ -21,11 +21,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxenvs.agents import runner
+    from jaxenvs.agents import restore
 
     checks.int_flag("--episodes", args.episodes, 1, 10**6)
     checks.int_flag("--seed", args.seed, 0, INT_MAX - 1)  # the default is the run's seed + 1
-    result = runner.evaluate_run(
+    result = restore.evaluate_run(
         args.run_dir, args.episodes, args.seed, args.video, physics=args.physics
     )
     if args.json:

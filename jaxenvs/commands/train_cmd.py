@@ -19,7 +19,7 @@ RUN_FLAGS = {"seed": "seed", "num_seeds": "num_seeds", "eval_episodes": "eval_ep
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from jaxenvs.agents.runner import ALGORITHMS
+    from jaxenvs.agents.run_config import ALGORITHMS
 
     parser.add_argument("env_id", nargs="?", help="env id (or env.id in the config file)")
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), help="the learning algorithm")
@@ -56,7 +56,7 @@ def _enable_compile_cache(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxenvs.agents import runner
+    from jaxenvs.agents import loop, run_config
     from jaxenvs.cli import UserError
 
     checks.int_flag("--devices", args.devices, 1, 2**16)
@@ -68,24 +68,24 @@ def run(args: argparse.Namespace) -> int:
                 f"--resume continues with {args.resume}/config.yaml; drop "
                 + ", ".join(c if c == "env_id" else "--" + c.replace("_", "-") for c in clash)
             )
-        resolved = runner.load_run_config(args.resume)
+        resolved = run_config.load_run_config(args.resume)
         out = Path(args.resume)
         resume = True
     else:
         train_overrides: dict[str, object] = {k: getattr(args, f) for f, k in RUN_FLAGS.items()}
         if args.no_video:
             train_overrides["video"] = False
-        resolved = runner.resolve_config(
+        resolved = run_config.resolve_config(
             args.env_id,
             args.algo,
             args.config,
             agent_overrides={k: getattr(args, f) for f, k in AGENT_FLAGS.items()},
             train_overrides=train_overrides,
         )
-        resolved = runner.with_physics(resolved, args.physics)
+        resolved = run_config.with_physics(resolved, args.physics)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         out = Path(args.out or f"runs/{resolved.env_id}-{resolved.algo}-{stamp}")
-        if (out / runner.CHECKPOINT_FILE).exists():
+        if (out / run_config.CHECKPOINT_FILE).exists():
             raise UserError(f"{out} already holds a run; use --resume {out} or another --out")
         resume = False
     if args.no_video and resume:
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         )
     _enable_compile_cache(args)  # only once the command is known to be valid
     try:
-        summary = runner.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
+        summary = loop.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
     except KeyboardInterrupt:
         if args.quiet:  # the runner's notice was silenced; the way on is not
             print(f"continue with: jaxenvs train --resume {out}", file=sys.stderr)
