@@ -214,3 +214,27 @@ def test_walker_contact_parity():
 def test_config_records_resolved_engine():
     env = jaxenvs.make("CartPole-v0", physics="auto")
     assert dataclasses.asdict(env.config)["physics"] in ("mjx", "c")
+
+
+def test_auto_picks_by_batch_size_on_a_cpu():
+    """``physics="auto"`` on a CPU: C for small batches, MJX from the task's measured
+    cross-over (``cpu_mjx_from``), for ``make`` and for a training run's config alike."""
+    from jaxenvs.agents import run_config
+    from jaxenvs.core import cpu_auto
+    from jaxenvs.tasks.cartpole import CartPole
+    from jaxenvs.tasks.hexapod import HexapodWalk
+
+    assert cpu_auto(CartPole, 16, backend="cpu") is None
+    assert cpu_auto(CartPole, CartPole.cpu_mjx_from, backend="cpu") == "mjx"
+    assert cpu_auto(CartPole, 1 << 20, backend="gpu") is None
+    assert cpu_auto(HexapodWalk, 1 << 20, backend="cpu") is None  # C at every size
+    if jax.default_backend() != "cpu":
+        return
+    assert jaxenvs.make("CartPole-v0", num_envs=16).env.physics == "c"
+    assert jaxenvs.make("CartPole-v0", num_envs=4096).env.physics == "mjx"
+    assert jaxenvs.make("CartPole-v0", num_envs=4096, physics="c").env.physics == "c"
+    for num_envs, want in ((16, "c"), (4096, "mjx")):
+        resolved = run_config.resolve_config(
+            "CartPole-v0", "ppo", agent_overrides={"num_envs": num_envs}
+        )
+        assert run_config.engine_resolved(resolved).env.physics == want

@@ -244,7 +244,7 @@ def engine_resolved(resolved: ResolvedConfig) -> ResolvedConfig:
         return resolved
     factory = registry.spec(resolved.env_id).factory
     cpu_default = getattr(factory, "cpu_physics", None) if isinstance(factory, type) else None
-    by_batch = cpu_auto(factory, getattr(resolved.train, "num_envs", None))
+    by_batch = cpu_auto(factory, getattr(resolved.agent, "num_envs", None))
     if by_batch is not None:
         physics = by_batch
     elif isinstance(cpu_default, str):
