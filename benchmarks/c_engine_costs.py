@@ -1,9 +1,10 @@
 """What the C engine costs beside its throughput: memory under domain randomisation and
 the first call.
 
-* ``memory``: peak resident memory above a bare ``import jaxenvs`` while 2048 randomised
-  walkers (``HexapodWalk-v0``, ``randomize=True``) step 20 times under ``physics="c"``,
-  each measured in a fresh process.
+* ``memory``: peak resident memory above a bare ``import jaxenvs`` while 2048 walkers
+  (``HexapodWalk-v0``, default and randomised params) step 20 times under ``physics="c"``,
+  each in a fresh process: once compiling (cold), once loading the programs from JAX's
+  persistent cache (warm).
 * ``first_call``: seconds from ``jaxenvs.make(ID, num_envs=16, physics="c")`` to the end of
   the first jitted reset and step, per task, in a fresh process each.
 
@@ -16,6 +17,7 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 
 import results_io
 
@@ -31,6 +33,8 @@ TASKS = (
 
 _MEMORY = """
 import json, resource, jax, jax.numpy as jnp
+jax.config.update("jax_compilation_cache_dir", {cache!r})
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 import jaxenvs
 def peak():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB
@@ -42,7 +46,7 @@ for _ in range(20):
     s = step(s, jnp.zeros(({n}, 18)))
 jax.block_until_ready(s)
 print(json.dumps({{"envs": {n}, "randomize": {r}, "peak_mib_above_import": peak() - base,
-                  "path": benv.env.sim.engine.path}}))
+                  "path": benv.env.sim.engine.path, "compile_cache": {which!r}}}))
 """
 
 _FIRST = """
@@ -72,9 +76,14 @@ def main() -> None:
     args = parser.parse_args()
     rows = []
     for randomize in (False, True):
-        row = _run(_MEMORY.format(n=args.envs, r=randomize))
-        rows.append({"measure": "memory", **row})
-        print(row, flush=True)
+        with tempfile.TemporaryDirectory() as cache:
+            # cold: the process compiles (XLA's compile is most of its peak); warm: a second
+            # process loads the programs from JAX's persistent cache, as a repeat run does
+            for which in ("cold", "warm"):
+                code = _MEMORY.format(n=args.envs, r=randomize, cache=cache, which=which)
+                row = _run(code)
+                rows.append({"measure": "memory", **row})
+                print(row, flush=True)
     for task in TASKS:
         row = _run(_FIRST.format(task=task))
         rows.append({"measure": "first_call", **row})

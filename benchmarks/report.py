@@ -583,7 +583,9 @@ def c_costs(recs: list[Rec]) -> Cells:
     (rec,) = recs
     cells = [["measure", "what", "figure"]]
     for r in rows(rec, measure="memory"):
-        what = f"{r['envs']:,} walkers, {'randomised' if r['randomize'] else 'default'} params"
+        params = "randomised" if r["randomize"] else "default"
+        cache = r.get("compile_cache", "cold")
+        what = f"{r['envs']:,} walkers, {params} params, {cache} compile cache"
         cells.append(
             ["peak RSS above `import jaxenvs`", what, f"{r['peak_mib_above_import']:.0f} MiB"]
         )
