@@ -561,15 +561,20 @@ def engines_sweep(recs: list[Rec]) -> Cells:
                     secs(cr["first_call_s"]),
                 ]
             )
-        peer = [r for r in rec["rows"] if r.get("name") == "mujoco.rollout"]
+        peer = [
+            r
+            for r in rec["rows"]
+            if r.get("name") in ("mujoco.rollout", "envpool") and not r.get("skipped")
+        ]
         for r in peer:
+            who = r["name"]
             cells.append(
                 [
                     task,
                     f"{r['num_envs']:,}",
                     "",
                     "",
-                    "mujoco.rollout, our MJCF",
+                    f"{who} {r.get('variant', '')}".strip(),
                     rate(r["env_steps_per_s"]),
                     "",
                     "",
@@ -835,6 +840,9 @@ TABLES: dict[str, Table] = {
         engines_sweep,
     ),
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
+    "engines-sweep-cpu2": Table(
+        ("engines_sweep_cpu2_cartpolev0", "engines_sweep_cpu2_reacherv0"), engines_sweep
+    ),
     "peers-cpu2": Table(PEERS_CPU2, peers_cpu2),
     "gpu-h100": Table(
         ("throughput_h100_lean_vs_full_model", "throughput_h100_reacher_plain_step"), gpu_h100
