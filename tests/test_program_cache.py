@@ -151,3 +151,39 @@ def test_user_tasks_are_not_stored(tmp_path, monkeypatch):
         )  # fmt: skip
         env, trainer = runner.build(resolved)
         assert runner._program_store(resolved, env, trainer) is None
+
+
+def test_c_engine_programs_are_stored_and_loaded(tmp_path, monkeypatch):
+    """Programs that step the native C engine name the model by its digest, so they are
+    stored and a second run loads them (the callback path's programs are not stored)."""
+    from jaxenvs import native
+
+    monkeypatch.setattr(compile_cache, "active", lambda: tmp_path / "cache")
+    loaded: list[bool] = []
+    real = program_cache.load_or_export
+
+    def spy(*args, **kwargs):
+        program = real(*args, **kwargs)
+        loaded.append(program.loaded)
+        return program
+
+    monkeypatch.setattr(program_cache, "load_or_export", spy)
+    agent = dict(num_envs=4, chunk_steps=20, total_steps=4 * 20 * 2)
+    resolved = runner.resolve_config(
+        "CartPole-v0", "qlearning", None, agent, dict(eval_episodes=2, video=False)
+    )
+    resolved = runner._engine_resolved(resolved)
+    assert resolved.env.physics == "c"
+    outs = []
+    for name in ("cold", "warm"):
+        runner._programs.cache_clear()
+        outs.append(tmp_path / name)
+        runner.train(resolved, outs[-1], quiet=True)
+    runner._programs.cache_clear()
+    if not native.available():
+        assert loaded == []  # nothing stored on the callback path
+        return
+    assert loaded == [False] * 3 + [True] * 3
+    a, b = (checkpoint.read(o / runner.CHECKPOINT_FILE)[0] for o in outs)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)

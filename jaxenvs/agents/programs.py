@@ -120,9 +120,13 @@ def program_store(
     owners = (type(env).__module__, type(trainer).__module__, getattr(factory, "__module__", ""))
     if cache is None or not all(str(m).startswith(STORE_MODULES) for m in owners):
         return None
-    if env.physics != "mjx":  # a stored (exported) program cannot carry a host callback
+    # a stored (exported) program cannot carry a host callback: the C engine's programs
+    # are stored only on its native path, and say so in their key
+    path = getattr(getattr(env.sim, "engine", None), "path", None)
+    if env.physics != "mjx" and path != "native":
         return None
     settings = resolved.to_dict()
+    settings["c_engine"] = path
     settings["train"] = {k: v for k, v in settings["train"].items() if k != "seed"}
 
     def store(
