@@ -17,6 +17,7 @@ import pytest
 from jaxenvs.core import NoExtras
 from jaxenvs.tasks.hexapod import (
     JOINT_RANGE,
+    OBS_NOISE,
     HexapodOneLeg,
     HexapodWalk,
     OneLegConfig,
@@ -116,6 +117,27 @@ def test_walker_observation_and_reward_terms(walk):
     d0 = np.linalg.norm(target - np.asarray(state.data.qpos[:2]))
     d1 = float(state2.info["distance"])
     assert abs(float(state2.info["progress"]) - (d0 - d1) / 0.05) < 1e-3
+
+
+def test_walker_noise_options_default_off_and_keyed():
+    """action_noise / obs_noise: off by default (the noiseless observation), and drawn
+    from the hooks' keys (same key, same noise; another key, other noise)."""
+    quiet = HexapodWalk(WalkConfig(physics="mjx"))
+    noisy = HexapodWalk(WalkConfig(physics="mjx", action_noise=0.1, obs_noise=1.0))
+    key = jax.random.key(3)
+    s0, n0 = quiet.reset(key), noisy.reset(key)
+    np.testing.assert_array_equal(s0.obs, quiet._sense(s0.data))
+    assert np.allclose(n0.data.qpos, s0.data.qpos)  # noise does not touch the init
+    sensed = np.asarray(noisy._sense(n0.data))
+    err = np.asarray(n0.obs) - sensed
+    assert np.all(np.abs(err) < 6 * OBS_NOISE) and np.any(err != 0)
+    np.testing.assert_array_equal(noisy.reset(key).obs, n0.obs)
+    assert not np.array_equal(noisy.reset(jax.random.key(4)).obs[:18], n0.obs[:18])
+    a = jnp.zeros(18)
+    q_quiet = quiet.step(s0, a).data.qpos
+    q_noisy = noisy.step(n0, a).data.qpos
+    assert not np.allclose(q_noisy, q_quiet)  # the servo targets moved
+    np.testing.assert_array_equal(noisy.step(n0, a).data.qpos, q_noisy)
 
 
 def test_walker_tilt_and_spin_penalties(walk):

@@ -53,6 +53,20 @@ LEG_RANGE = (0.46, 1.57, 1.57)  # half-ranges of hip yaw, femur, tibia (rad)
 #: a host constant (numpy): a JAX array here would start JAX's backends at import time
 JOINT_RANGE = np.asarray(LEG_RANGE * 6, np.float32)
 STAND_HEIGHT = 0.135  # torso height when standing on all six feet at zero angles (m)
+#: HexapodWalk-v0's observation noise at ``obs_noise=1``, per entry: joint angles (rad),
+#: joint velocities (rad/s), height (m), gravity direction, body velocity (m/s), body
+#: angular velocity (rad/s), target direction
+OBS_NOISE = np.concatenate(
+    [
+        np.full(18, 0.02),
+        np.full(18, 0.5),
+        [0.005],
+        np.full(3, 0.03),
+        np.full(3, 0.05),
+        np.full(3, 0.2),
+        np.full(3, 0.02),
+    ]
+).astype(np.float32)
 WALK_FIELDS = (
     "body_mass",
     "body_inertia",
@@ -177,6 +191,10 @@ class WalkConfig(HexapodRandomization):
         (0.7: tilted more than ~45 degrees; 0 would be lying on its side).
       init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
       init_height: initial body height (m): the feet start just above the floor.
+      action_noise: std of Gaussian noise added to each action before it is clipped to
+        [-1, 1] (fractions of the joint's half-range; 0: none).
+      obs_noise: std of Gaussian observation noise as a multiple of :data:`OBS_NOISE`
+        (per-entry sensor scales; 0: none). Both draw from the hooks' keys.
     """
 
     episode_length: int = 1000
@@ -192,6 +210,8 @@ class WalkConfig(HexapodRandomization):
     min_upright: float = 0.7
     init_joint_noise: float = 0.05
     init_height: float = 0.14
+    action_noise: float = 0.0
+    obs_noise: float = 0.0
 
     def validate(self) -> None:
         super().validate()
@@ -199,7 +219,7 @@ class WalkConfig(HexapodRandomization):
         require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
         randomize.check_range("target_distance", self.target_distance, positive=True)
         weights = ("progress_weight", "energy_weight", "alive_bonus", "tilt_weight", "spin_weight")
-        for name in (*weights, "init_joint_noise"):
+        for name in (*weights, "init_joint_noise", "action_noise", "obs_noise"):
             require(getattr(self, name) >= 0, name, "must be >= 0")
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
@@ -212,8 +232,10 @@ class HexapodWalk(Env[WalkConfig]):
       femur, tibia), 18 joint velocities, body height (m), gravity direction in the body
       frame (3), body linear velocity in the body frame (3, m/s), body angular velocity
       in the body frame (3, rad/s), unit direction to the target in the body frame (3;
-      the target is on the floor, the direction horizontal in world).
-    * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range.
+      the target is on the floor, the direction horizontal in world); with
+      ``obs_noise`` > 0, plus Gaussian noise of std ``obs_noise * OBS_NOISE``.
+    * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range
+      (with ``action_noise`` > 0, Gaussian noise of that std added, then clipped).
     * Reward: ``progress_weight * (d_prev - d) / 0.05 - energy_weight * sum|tau * qdot|
       - tilt_weight * (1 - up_z) - spin_weight * (w_roll^2 + w_pitch^2) + alive_bonus``
       with ``d`` the horizontal body-target distance (the progress term is the decrease of
@@ -285,11 +307,21 @@ class HexapodWalk(Env[WalkConfig]):
         params: HexapodParams,
     ) -> tuple[mjx.Data, NoExtras]:
         model = self.sim.model_with(params.model)
+        if self.config.action_noise > 0:
+            noise = self.config.action_noise * jax.random.normal(key, action.shape)
+            action = jnp.clip(action + noise, -1.0, 1.0)
         return self.sim.step(model, data, servo_targets(action)), extras
 
     def _observe(
         self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: HexapodParams
     ) -> jax.Array:
+        obs = self._sense(data)
+        if self.config.obs_noise > 0:
+            obs = obs + self.config.obs_noise * OBS_NOISE * jax.random.normal(key, obs.shape)
+        return obs
+
+    def _sense(self, data: mjx.Data) -> jax.Array:
+        """The noiseless observation (the layout in the class docstring)."""
         rot = quat_to_mat(data.qpos[3:7])
         to_target = data.mocap_pos[0, :2] - data.qpos[:2]
         to_target = to_target / jnp.maximum(jnp.linalg.norm(to_target), 1e-6)
