@@ -599,6 +599,24 @@ def c_costs(recs: list[Rec]) -> Cells:
     return cells
 
 
+def main_command(recs: list[Rec]) -> Cells:
+    (rec,) = recs
+    cells = [["command", "run", "whole command", "train wall", "engine", "eval return", "video"]]
+    for r in rec["rows"]:
+        cells.append(
+            [
+                f"`{r['command']}`",
+                "cold" if r["run"] == 0 else f"warm ({r['run']})",
+                secs(r["whole_command_s"]),
+                secs(r["train_wall_s"]),
+                str(r["physics"]),
+                f"{r['eval_mean_return']:.1f}",
+                "yes" if r["video"] else "no",
+            ]
+        )
+    return cells
+
+
 def facade_c(recs: list[Rec]) -> Cells:
     (rec,) = recs
     cells = [["mode", "who", "envs", "steps/s (best of rounds)", "ours / peer", "first call"]]
@@ -840,6 +858,7 @@ TABLES: dict[str, Table] = {
         engines_sweep,
     ),
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
+    "main-command-cpu2": Table(("main_command_cpu2",), main_command),
     "engines-sweep-cpu2": Table(
         ("engines_sweep_cpu2_cartpolev0", "engines_sweep_cpu2_reacherv0"), engines_sweep
     ),
