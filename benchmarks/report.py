@@ -860,7 +860,12 @@ TABLES: dict[str, Table] = {
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
     "main-command-cpu2": Table(("main_command_cpu2",), main_command),
     "engines-sweep-cpu2": Table(
-        ("engines_sweep_cpu2_cartpolev0", "engines_sweep_cpu2_reacherv0"), engines_sweep
+        (
+            "engines_sweep_cpu2_cartpolev0",
+            "engines_sweep_cpu2_reacherv0",
+            "engines_sweep_cpu2_hexapodwalkv0",
+        ),
+        engines_sweep,
     ),
     "peers-cpu2": Table(PEERS_CPU2, peers_cpu2),
     "gpu-h100": Table(
