@@ -436,23 +436,33 @@ def walker_seeds(recs: list[Rec]) -> Cells:
         return 1, "v1 (upright terms, randomised training, `ent_coef` 0.01, 112 chunks)"
 
     def three(g: Row) -> str:
-        return f"{g['speed_m_per_s']:.3f} / {pct(g['fell_fraction'])} / {pct(g['targets_reached'])}"
+        # fell within 10 s / over the 50 s episode (far target), 3 m targets reached, and the
+        # 3 m group's falls over the episode; the last two falls where the record has them
+        def ep(key: str) -> str:
+            return pct(g[key]) if key in g else "-"
+
+        return (
+            f"{g['speed_m_per_s']:.3f} / {pct(g['fell_fraction'])} / "
+            f"{ep('fell_fraction_episode')} / {pct(g['targets_reached'])} / "
+            f"{ep('fell_fraction_episode_near')}"
+        )
 
     cells = [
         [
             "config, seed",
-            "train wall, env steps",
-            "MJX: speed / fell / reached",
+            "train / process wall, env steps",
+            "MJX: speed / fell 10 s / fell 50 s / 3 m reached / 3 m fell 50 s",
             "randomised",
             "MuJoCo C",
             "C, randomised",
         ]
     ]
     for r in sorted(rec["rows"], key=lambda r: (label(r)[0], r["seed"])):
+        process = f" / {r['process_wall_s']} s" if "process_wall_s" in r else " s"
         cells.append(
             [
                 f"{label(r)[1]}, {r['seed']}" + (" (*)" if "recovered" in r else ""),
-                f"{r['train_seconds']:.1f} s, {r['env_steps'] / 1e6:.1f}M",
+                f"{r['train_seconds']:.1f}{process}, {r['env_steps'] / 1e6:.1f}M",
                 three(r),
                 three(r["randomized"]),
                 three(r["mujoco_c"]),
