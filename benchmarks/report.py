@@ -849,11 +849,7 @@ TABLES: dict[str, Table] = {
         ),
         ppo,
     ),
-    "walker-seeds": Table(
-        ("ppo_walker_seeds_h200",),
-        walker_seeds,
-        "(*) entered from the run's evaluation logs: its run directory was not kept.",
-    ),
+    "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
     "tabular-cold": Table(("tabular_cartpole_cold_cpu2",), tabular_cold),
     "scaling-env": Table(("scaling_h200x2_reacher_walker",), scaling_env),
     "scaling-ppo": Table(("scaling_h200x2_reacher_walker",), scaling_ppo),
