@@ -565,7 +565,7 @@ def engines_sweep(recs: list[Rec]) -> Cells:
                     f"{n:,}",
                     rate(m["env_steps_per_s"]),
                     rate(cr["env_steps_per_s"]),
-                    pick,
+                    str(pick),
                     f"{got / fast:.2f}" + ("" if got / fast >= 0.9 else " (**below 0.9**)"),
                     secs(m["first_call_s"]),
                     secs(cr["first_call_s"]),
