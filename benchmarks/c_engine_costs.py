@@ -22,15 +22,7 @@ import tempfile
 
 import results_io
 
-TASKS = (
-    "CartPole-v0",
-    "CartpoleStayUp-v0",
-    "CartpoleBalance-v0",
-    "CartpoleSwingup-v0",
-    "Reacher-v0",
-    "HexapodWalk-v0",
-    "HexapodOneLeg-v0",
-)
+import jaxenvs
 
 _MEMORY = """
 import json, resource, jax, jax.numpy as jnp
@@ -85,7 +77,7 @@ def main() -> None:
                 row = _run(code)
                 rows.append({"measure": "memory", **row})
                 print(row, flush=True)
-    for task in TASKS:
+    for task in jaxenvs.list_envs():  # every built-in task
         row = _run(_FIRST.format(task=task))
         rows.append({"measure": "first_call", **row})
         print(row, flush=True)

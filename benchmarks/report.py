@@ -530,7 +530,6 @@ def scaling_ppo(recs: list[Rec]) -> Cells:
 def engines_sweep(recs: list[Rec]) -> Cells:
     """Both engines at each batch size, what physics='auto' picks there (the task's class
     attribute ``cpu_mjx_from``, read from jaxenvs), and auto over the faster engine."""
-    import jaxenvs
     from jaxenvs import registry
     from jaxenvs.core import cpu_auto
 
@@ -590,7 +589,6 @@ def engines_sweep(recs: list[Rec]) -> Cells:
                     "",
                 ]
             )
-    del jaxenvs
     return cells
 
 

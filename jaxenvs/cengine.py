@@ -282,13 +282,14 @@ class CEngine:
         self.path = via or path()
         if self.path not in ("native", "callback"):
             raise ValueError(f"via must be 'native' or 'callback', got {via!r}")
+        #: the digest native calls name the model by (``None`` on the callback path)
+        self.key: str | None = None
+        self._callback: _Callback | None = None
         if self.path == "native":
             self.key = native.register_model(model)
-            self._callback: _Callback | None = None
         else:
             if via is None:
                 _warn_fallback_once()
-            self.key = native.model_key(model)
             self._callback = _Callback(model, self.threads, self.layout)
 
     def blank(self, data: mjx.Data) -> mjx.Data:
@@ -338,12 +339,8 @@ class CEngine:
         args = [jnp.asarray(getattr(data, n)) for n in lay.inputs]
         args = [a if a.dtype == jnp.bool_ else a.astype(dtype) for a in args]
         impl = data._impl
-        shapes = [
-            jax.ShapeDtypeStruct(
-                np.shape(getattr(impl if in_impl else data, n)), _float(data, n, in_impl)
-            )
-            for n, in_impl in lay.outputs
-        ]
+        leaves = [jnp.asarray(getattr(impl if in_impl else data, n)) for n, in_impl in lay.outputs]
+        shapes = [jax.ShapeDtypeStruct(leaf.shape, leaf.dtype) for leaf in leaves]
         if self._callback is None:
             call = jax.ffi.ffi_call(native.TARGET, shapes, vmap_method="broadcast_all")
             results = call(
@@ -365,11 +362,6 @@ class CEngine:
         return data.replace(_impl=impl.replace(**low), **top)
 
 
-def _float(data: mjx.Data, name: str, in_impl: bool) -> Any:
-    leaf = getattr(data._impl if in_impl else data, name)
-    return jnp.asarray(leaf).dtype
-
-
 class _Callback:
     """The callback path: the native engine's contract over ``mujoco.batch.Batch``.
 
@@ -381,17 +373,16 @@ class _Callback:
         self.model = model
         self.threads = threads
         self.layout = lay
-        self._batches: dict[tuple[int, int], Any] = {}
-        self._expanded: dict[int, set[str]] = {}
+        # (batch, the model fields it has expanded) per (batch size, threads)
+        self._batches: dict[tuple[int, int], tuple[Any, set[str]]] = {}
         self._lock = threading.Lock()  # devices may call at once; the batches are shared
 
-    def _batch(self, nsim: int, threads: int) -> Any:
+    def _batch(self, nsim: int, threads: int) -> tuple[Any, set[str]]:
         from mujoco import batch
 
         key = (nsim, threads)
         if key not in self._batches:
-            self._batches[key] = batch.Batch(self.model, nsim, threads, persistent=True)
-            self._expanded[id(self._batches[key])] = set()
+            self._batches[key] = (batch.Batch(self.model, nsim, threads, persistent=True), set())
         return self._batches[key]
 
     def __call__(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
@@ -408,11 +399,10 @@ class _Callback:
         lead = qpos.shape[: qpos.ndim - 1]
         nsim = int(np.prod(lead, dtype=np.int64))
         serial = self.threads == 1 or nsim * max(substeps, 1) * max(m.nv, 1) < SERIAL_WORK
-        b = self._batch(nsim, 1 if serial else self.threads)
+        b, expanded = self._batch(nsim, 1 if serial else self.threads)
         for name, value in zip(lay.inputs, ins, strict=True):
             view = b.bind(name)
             view[...] = value.reshape(view.shape)
-        expanded = self._expanded[id(b)]
         for name in expanded - set(names):
             b.expand(name)[...] = getattr(m, name)
         for name, value in zip(names, params, strict=True):

@@ -158,6 +158,10 @@ void StoreNaN(void* dst, ffi::DataType t, int64_t offset, int64_t n) {
   }
 }
 
+ffi::Error Fail(const std::string& message) {
+  return ffi::Error::InvalidArgument("jaxenvs native engine: " + message);
+}
+
 // ------------------------------------------------------------------ engines
 
 struct Pool {  // one mjBatch of a thread count, grown to the largest batch seen
@@ -239,8 +243,7 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
       return s;
     }
     if (input && !StateFields().count(name)) {
-      return ffi::Unexpected(ffi::Error::InvalidArgument(
-          "jaxenvs native engine: '" + name + "' is not a state field a step reads"));
+      return ffi::Unexpected(Fail("'" + name + "' is not a state field a step reads"));
     }
     if (!input && name == "actuator_moment") {
       s.kind = Kind::kDenseMoment;
@@ -250,8 +253,7 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
     }
     s.field = FindDataField(name);
     if (!s.field || (!s.field->is_num && name != "eq_active")) {
-      return ffi::Unexpected(ffi::Error::InvalidArgument(
-          "jaxenvs native engine: '" + name + "' is not a floating-point mjData field"));
+      return ffi::Unexpected(Fail("'" + name + "' is not a floating-point mjData field"));
     }
     s.size = FieldSize(m, *s.field);
     return s;
@@ -349,10 +351,6 @@ void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
 }
 
 // ------------------------------------------------------------------ the handler
-
-ffi::Error Fail(const std::string& message) {
-  return ffi::Error::InvalidArgument("jaxenvs native engine: " + message);
-}
 
 ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t threads,
                     int64_t serial_work, std::string_view inputs, std::string_view params,
