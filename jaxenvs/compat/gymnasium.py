@@ -15,8 +15,10 @@ task's config, as in :func:`jaxenvs.make`.
 :class:`JaxEnv` (one env): numpy float32 observations, Python scalars in the 5-tuple,
 Gymnasium seeding (``reset(seed=)`` seeds ``np_random``, which draws the JAX key of every
 reset). ``reset`` and ``step`` are jitted once per task config and shared by every
-instance; a step moves the action to the device and ONE packed array (observation,
-reward, flags, info) back.
+instance. The env keeps its state as a few small buffers of 32-bit words (:class:`_Words`):
+a step donates them to one jitted call, and reads the observation, reward, flags and info
+from the first of the new ones. Small buffers keep XLA's CPU runtime on the calling thread
+(:data:`SEQUENTIAL_BYTES`), where a single small env's step costs ~3x less.
 
 :class:`JaxVectorEnv` (N envs): one jitted, vmapped :class:`~jaxenvs.core.BatchedEnv`
 step, one device-to-host transfer per step. Auto-reset is ``AutoresetMode.SAME_STEP``:
@@ -33,6 +35,7 @@ masks): ``nan_actions``, ``diverged`` and the task's metrics (e.g. ``distance``)
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import warnings
 from collections.abc import Callable
@@ -109,11 +112,11 @@ def _pack(state: State, layout: _Layout) -> jax.Array:
 
 
 class _FlatState:
-    """Packs a State pytree into a few flat buffers (one per dtype) and back.
+    """Packs a batched State pytree into a few flat buffers (one per dtype) and back.
 
     Flattening the ~100-leaf pytree of an ``mjx.Data`` in Python costs far more than a
-    small env's physics step, so the facade keeps its state as these buffers and only
-    the jitted functions see the tree. ``lead`` is the batch shape (``()`` or ``(N,)``).
+    small env's physics step, so the vector env keeps its state as these buffers and only
+    the jitted functions see the tree. ``lead`` is the batch shape, ``(N,)``.
     """
 
     def __init__(self, example: Any, lead: tuple[int, ...]) -> None:
@@ -157,6 +160,172 @@ class _FlatState:
         return jax.tree.unflatten(self.treedef, leaves)
 
 
+#: XLA's CPU runtime runs a program thunk after thunk on the calling thread only when every
+#: buffer it touches holds at most this many bytes; one larger buffer sends ready thunks to
+#: its thread pool, which costs a single env's small step more in thread hand-offs (~50 us
+#: on 2 cores) than the step itself.
+SEQUENTIAL_BYTES = 512
+#: the leaves of a State a single env's step reports to the host, in this order (then the
+#: task's info keys)
+_REPORTED = ("obs", "reward", "terminated", "truncated")
+
+
+def _is_word(leaf: Any) -> bool:
+    dtype = leaf.dtype
+    if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key):
+        return _key_data(leaf).dtype == jnp.uint32
+    return dtype == jnp.bool_ or np.dtype(dtype).itemsize == 4
+
+
+def _key_data(leaf: Any) -> jax.ShapeDtypeStruct:
+    """Shape and dtype of the data of a PRNG key (array or ShapeDtypeStruct)."""
+    return jax.eval_shape(jax.random.key_data, leaf)
+
+
+def _to_words(leaf: jax.Array) -> jax.Array:
+    if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+        leaf = jax.random.key_data(leaf)
+    if leaf.dtype == jnp.bool_:
+        return jnp.ravel(leaf).astype(jnp.uint32)
+    return jnp.ravel(jax.lax.bitcast_convert_type(leaf, jnp.uint32))
+
+
+class _Words:
+    """One env's State as a few flat uint32 buffers, each of at most :data:`SEQUENTIAL_BYTES`.
+
+    Every 32-bit leaf (float32, int32, uint32, bool, the PRNG key's data) is stored as its
+    bits in 32-bit words, so the state travels in as few buffers as the size limit allows
+    (each buffer in and out of a call costs ~1 us of dispatch) and the step's program runs
+    sequentially (see :data:`SEQUENTIAL_BYTES`). The reported leaves (:data:`_REPORTED`
+    and the info keys) come first, so the host reads a step's results from the first
+    buffer(s) of the new state without a separate output. Leaves of other sizes (float64
+    under x64) travel in one buffer per dtype after the words.
+    """
+
+    def __init__(self, example: State, info_keys: tuple[str, ...]) -> None:
+        with_paths, self.treedef = jax.tree_util.tree_flatten_with_path(example)
+        leaves = [x for _, x in with_paths]
+        self.examples = [jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves]
+        index = {jax.tree_util.keystr(path): i for i, (path, _) in enumerate(with_paths)}
+        #: the PRNG implementation of each key leaf (read from a traced key)
+        self.key_impls: dict[int, Any] = {}
+        for i, x in enumerate(self.examples):
+            if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+                jax.eval_shape(functools.partial(self._grab_impl, i), x)
+        reported = [f".{name}" for name in _REPORTED] + [f".info[{k!r}]" for k in info_keys]
+        first = [index[path] for path in reported]
+        if not all(_is_word(leaves[i]) and leaves[i].ndim <= 1 for i in first):
+            raise TypeError("a reported leaf of the env's State is not a 32-bit scalar or vector")
+        rest = [i for i in range(len(leaves)) if i not in set(first)]
+        order = first + [i for i in rest if _is_word(leaves[i])]
+        #: leaf indices per buffer: the words' buffers, then the other dtypes'
+        self.chunks = self._split(order, 4)
+        self.num_words = len(self.chunks)
+        others: dict[str, list[int]] = {}
+        for i in rest:
+            if not _is_word(leaves[i]):
+                others.setdefault(str(leaves[i].dtype), []).append(i)
+        for name in sorted(others):
+            self.chunks += self._split(others[name], np.dtype(name).itemsize)
+        # where each reported value lies in the words of the first buffers
+        offsets: dict[int, int] = {}
+        at = 0
+        for chunk in self.chunks[: self.num_words]:
+            for i in chunk:
+                offsets[i] = at
+                at += self._words(i)
+        #: buffers holding the reported leaves
+        self.num_reported = 1 + max(
+            next(c for c, chunk in enumerate(self.chunks) if i in chunk) for i in first
+        )
+        n = leaves[first[0]].size
+        self.obs = slice(offsets[first[0]], offsets[first[0]] + n)
+        self.reward, self.terminated, self.truncated = (offsets[i] for i in first[1:4])
+        self.info = [
+            (k, offsets[i], leaves[i].dtype) for k, i in zip(info_keys, first[4:], strict=True)
+        ]
+
+    def _split(self, order: list[int], itemsize: int) -> list[list[int]]:
+        """``order`` cut into runs of at most SEQUENTIAL_BYTES (a larger leaf: alone)."""
+        limit = SEQUENTIAL_BYTES // itemsize
+        chunks: list[list[int]] = []
+        filled = 0
+        for i in order:
+            size = self._words(i)
+            if not chunks or filled + size > limit:
+                chunks.append([])
+                filled = 0
+            chunks[-1].append(i)
+            filled += size
+        return chunks
+
+    def _grab_impl(self, i: int, key: jax.Array) -> jax.Array:
+        self.key_impls[i] = jax.random.key_impl(key)
+        return key
+
+    def _words(self, i: int) -> int:
+        """Elements leaf ``i`` takes in its buffer (words for 32-bit leaves)."""
+        x = self.examples[i]
+        if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            return int(np.prod(_key_data(x).shape, dtype=np.int64))
+        return int(np.prod(x.shape, dtype=np.int64))
+
+    def pack(self, state: State) -> tuple[jax.Array, ...]:
+        leaves = jax.tree.leaves(state)
+        out = [
+            jnp.concatenate([_to_words(leaves[i]) for i in chunk])
+            for chunk in self.chunks[: self.num_words]
+        ]
+        out += [
+            jnp.concatenate([jnp.ravel(leaves[i]) for i in chunk])
+            for chunk in self.chunks[self.num_words :]
+        ]
+        return tuple(out)
+
+    def unpack(self, bufs: tuple[jax.Array, ...]) -> State:
+        leaves: list[Any] = [None] * len(self.examples)
+        for c, (buf, chunk) in enumerate(zip(bufs, self.chunks, strict=True)):
+            at = 0
+            for i in chunk:
+                x, size = self.examples[i], self._words(i)
+                piece = buf[at : at + size]
+                at += size
+                if c >= self.num_words:
+                    leaves[i] = jnp.reshape(piece, x.shape)
+                elif jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+                    data = jnp.reshape(piece, _key_data(x).shape)
+                    leaves[i] = jax.random.wrap_key_data(data, impl=self.key_impls[i])
+                elif x.dtype == jnp.bool_:
+                    leaves[i] = jnp.reshape(piece != 0, x.shape)
+                else:
+                    value = jax.lax.bitcast_convert_type(piece, x.dtype)
+                    leaves[i] = jnp.reshape(value, x.shape)
+        return jax.tree.unflatten(self.treedef, leaves)
+
+    def report(self, bufs: tuple[jax.Array, ...]) -> tuple[Any, ...]:
+        """``(obs, reward, terminated, truncated, info)`` read from a state's buffers."""
+        if self.num_reported == 1:
+            words = np.asarray(bufs[0])
+        else:
+            words = np.concatenate([np.asarray(b) for b in bufs[: self.num_reported]])
+        real = words.view(np.float32)
+        info: dict[str, Any] = {}
+        for key, at, dtype in self.info:
+            if dtype == np.bool_:
+                info[key] = bool(words[at])
+            elif dtype == np.float32:
+                info[key] = float(real[at])
+            else:
+                info[key] = int(words[at : at + 1].view(dtype)[0])
+        return (
+            real[self.obs].copy(),
+            float(real[self.reward]),
+            bool(words[self.terminated]),
+            bool(words[self.truncated]),
+            info,
+        )
+
+
 Bufs = tuple[jax.Array, ...]
 
 
@@ -164,18 +333,22 @@ Bufs = tuple[jax.Array, ...]
 class _Compiled:
     """Jitted functions of one (task, config, batch) shared by all facade instances.
 
-    ``reset(seed) -> (bufs, obs)``, ``step(bufs, action) -> (bufs, packed)``,
-    ``reset_masked(bufs, seed, mask) -> (bufs, obs)`` (batched only) and
-    ``unpack(bufs) -> State``; ``bufs`` is the :class:`_FlatState` form of the state.
+    Vector env (``words is None``; ``bufs`` in :class:`_FlatState` form): ``reset(seed) ->
+    (bufs, obs)``, ``step(bufs, action) -> (bufs, packed)``, ``reset_masked(bufs, seed,
+    mask) -> (bufs, obs)``. Single env (``bufs`` in :class:`_Words` form, whose
+    ``report`` reads a step's results from them): ``reset(seed) -> bufs`` and
+    ``step(bufs, action) -> bufs``, which donates its ``bufs``. Both: ``unpack(bufs) ->
+    State``.
     """
 
     env: Env
     batched: BatchedEnv | None
     layout: _Layout
-    reset: Callable[[Any], tuple[Bufs, jax.Array]]
-    step: Callable[[Bufs, Any], tuple[Bufs, jax.Array]]
+    reset: Callable[[Any], Any]
+    step: Callable[[Bufs, Any], Any]
     reset_masked: Callable[[Bufs, Any, Any], tuple[Bufs, jax.Array]] | None
     unpack: Callable[[Bufs], State]
+    words: _Words | None = None
 
 
 def _build(
@@ -188,15 +361,11 @@ def _build(
     env = registry.make(env_id, **overrides)
     assert isinstance(env, Env)
     layout = _Layout(env.observation_size, BASE_INFO_KEYS + tuple(env.metric_keys))
-    task: Env | BatchedEnv = env
-    benv = None
-    if num_envs is not None:
-        task = benv = BatchedEnv(env, num_envs, randomize=randomize, devices=devices)
+    if num_envs is None:
+        return _build_single(env, layout)
+    task = BatchedEnv(env, num_envs, randomize=randomize, devices=devices)
     seed0 = jax.ShapeDtypeStruct((), jnp.uint32)
-    flat = _FlatState(
-        jax.eval_shape(lambda s: task.reset(jax.random.key(s)), seed0),
-        () if num_envs is None else (num_envs,),
-    )
+    flat = _FlatState(jax.eval_shape(lambda s: task.reset(jax.random.key(s)), seed0), (num_envs,))
 
     def reset(seed: jax.Array) -> tuple[Bufs, jax.Array]:
         state = task.reset(jax.random.key(seed))
@@ -217,12 +386,34 @@ def _build(
 
     return _Compiled(
         env=env,
-        batched=benv,
+        batched=task,
         layout=layout,
         reset=jax.jit(reset),
         step=jax.jit(step),
-        reset_masked=None if benv is None else jax.jit(reset_masked),
+        reset_masked=jax.jit(reset_masked),
         unpack=jax.jit(flat.unpack),
+    )
+
+
+def _build_single(env: Env, layout: _Layout) -> _Compiled:
+    seed0 = jax.ShapeDtypeStruct((), jnp.uint32)
+    words = _Words(jax.eval_shape(lambda s: env.reset(jax.random.key(s)), seed0), layout.info_keys)
+
+    def reset(seed: jax.Array) -> Bufs:
+        return words.pack(env.reset(jax.random.key(seed)))
+
+    def step(bufs: Bufs, action: jax.Array) -> Bufs:
+        return words.pack(env.step(words.unpack(bufs), action))
+
+    return _Compiled(
+        env=env,
+        batched=None,
+        layout=layout,
+        reset=jax.jit(reset),
+        step=jax.jit(step, donate_argnums=0),
+        reset_masked=None,
+        unpack=jax.jit(words.unpack),
+        words=words,
     )
 
 
@@ -381,9 +572,8 @@ class JaxEnv(gymnasium.Env):
         self._render_args = (width, height, camera)
         self._renderer: Any = None
         self._bufs: Bufs | None = None
-        self._n = self.jax_env.observation_size
-        self._info_keys = self._fns.layout.info_keys
-        self._info_bool = tuple(k == "diverged" for k in self._info_keys)
+        assert self._fns.words is not None
+        self._words = self._fns.words
 
     @property
     def state(self) -> State | None:
@@ -395,32 +585,20 @@ class JaxEnv(gymnasium.Env):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         _check_options(options, ())
-        self._bufs, obs = self._fns.reset(_seed32(self.np_random))
+        self._bufs = self._fns.reset(_seed32(self.np_random))
         if self.render_mode == "human":
             self.render()
-        return np.array(obs), {}
+        return self._words.report(self._bufs)[0], {}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._bufs is None:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         action = check_action(self.jax_env, action)
-        self._bufs, packed = self._fns.step(self._bufs, action)
-        buf = np.asarray(packed)
-        n = self._n
-        info: dict[str, Any] = {}
-        for j, (key, is_bool) in enumerate(zip(self._info_keys, self._info_bool, strict=True)):
-            value = buf[2 * n + 3 + j]
-            info[key] = bool(value) if is_bool else float(value)
-        info["nan_actions"] = int(info["nan_actions"])
+        self._bufs = self._fns.step(self._bufs, action)
         if self.render_mode == "human":
             self.render()
-        return (
-            buf[:n].copy(),
-            float(buf[2 * n]),
-            bool(buf[2 * n + 1]),
-            bool(buf[2 * n + 2]),
-            info,
-        )
+        obs, reward, terminated, truncated, info = self._words.report(self._bufs)
+        return obs, reward, terminated, truncated, info
 
     def render(self) -> np.ndarray | None:  # type: ignore[override]
         if self.render_mode is None:
