@@ -125,6 +125,47 @@ def test_matches_the_functional_api(cartpole_env):
         assert reward == float(state.reward) and terminated == bool(state.terminated)
 
 
+def test_single_env_state_round_trips_bit_for_bit(cartpole_env):
+    """The single env's word buffers hold every leaf exactly: integers and key data whose
+    bits read as float32 NaNs or denormals, bools, and the state the env steps from."""
+    cartpole_env.reset(seed=1)
+    raw = cartpole_env.unwrapped
+    words = raw._words
+    state = raw.state
+    odd = np.array([0x7F800001, 0x00000001], np.uint32)  # a signalling NaN, a denormal
+    state = state.replace(
+        key=jax.random.wrap_key_data(odd, impl=jax.random.key_impl(state.key)),
+        time=jnp.asarray(np.array(0x7FC00001, np.uint32).view(np.int32)),
+        terminated=jnp.asarray(True),
+    )
+    back = jax.jit(words.unpack)(jax.jit(words.pack)(state))
+    for a, b in zip(jax.tree.leaves(state), jax.tree.leaves(back), strict=True):
+        if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a, b = jax.random.key_data(a), jax.random.key_data(b)
+        assert a.dtype == b.dtype
+        bits = [np.asarray(x).reshape(-1).view(np.uint8) for x in (a, b)]
+        np.testing.assert_array_equal(*bits)
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v0", "Reacher-v0"])
+def test_single_env_buffers_stay_small(env_id):
+    """Every buffer of the single env's state fits XLA's sequential limit, so its step
+    runs on the calling thread; the report sits in the first buffer(s)."""
+    env = gym.make(f"jaxenvs/{env_id}")
+    env.reset(seed=0)
+    bufs = env.unwrapped._bufs
+    assert all(b.nbytes <= facade.SEQUENTIAL_BYTES for b in bufs)
+    assert len(bufs) <= 1 + sum(b.nbytes for b in bufs) // facade.SEQUENTIAL_BYTES + 1
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    state = env.unwrapped.state
+    np.testing.assert_array_equal(obs, np.asarray(state.obs))
+    assert reward == float(state.reward) and terminated == bool(state.terminated)
+    assert truncated == bool(state.truncated)
+    assert info["nan_actions"] == int(state.info["nan_actions"])
+    assert isinstance(info["nan_actions"], int) and isinstance(info["diverged"], bool)
+    env.close()
+
+
 def test_instances_share_compiled_functions(cartpole_env):
     other = gym.make("jaxenvs/CartPole-v0")
     assert other.unwrapped._fns is cartpole_env.unwrapped._fns

@@ -183,18 +183,28 @@ def _key_data(leaf: Any) -> jax.ShapeDtypeStruct:
 
 
 def _to_words(leaf: jax.Array) -> jax.Array:
+    """A 32-bit leaf as float32 words: floats as they are, bools as 0.0 / 1.0, integers and
+    key data by their bits."""
     if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
         leaf = jax.random.key_data(leaf)
     if leaf.dtype == jnp.bool_:
-        return jnp.ravel(leaf).astype(jnp.uint32)
-    return jnp.ravel(jax.lax.bitcast_convert_type(leaf, jnp.uint32))
+        return jnp.ravel(leaf).astype(jnp.float32)
+    if leaf.dtype != jnp.float32:
+        leaf = jax.lax.bitcast_convert_type(leaf, jnp.float32)
+    return jnp.ravel(leaf)
+
+
+def _int(bits: int, kind: str) -> int:
+    """The integer whose 32 bits read as int32 are ``bits`` (``kind`` "u": unsigned)."""
+    return bits & 0xFFFFFFFF if kind == "u" else bits
 
 
 class _Words:
-    """One env's State as a few flat uint32 buffers, each of at most :data:`SEQUENTIAL_BYTES`.
+    """One env's State as a few flat float32 buffers, each of at most :data:`SEQUENTIAL_BYTES`.
 
-    Every 32-bit leaf (float32, int32, uint32, bool, the PRNG key's data) is stored as its
-    bits in 32-bit words, so the state travels in as few buffers as the size limit allows
+    Every 32-bit leaf (float32, int32, uint32, bool, the PRNG key's data) is stored in
+    float32 words (:func:`_to_words`; float32 leaves, most of the state, need no kernel to
+    pack), so the state travels in as few buffers as the size limit allows
     (each buffer in and out of a call costs ~1 us of dispatch) and the step's program runs
     sequentially (see :data:`SEQUENTIAL_BYTES`). The reported leaves (:data:`_REPORTED`
     and the info keys) come first, so the host reads a step's results from the first
@@ -238,11 +248,15 @@ class _Words:
         self.num_reported = 1 + max(
             next(c for c, chunk in enumerate(self.chunks) if i in chunk) for i in first
         )
-        n = leaves[first[0]].size
-        self.obs = slice(offsets[first[0]], offsets[first[0]] + n)
-        self.reward, self.terminated, self.truncated = (offsets[i] for i in first[1:4])
+        # obs, then reward, terminated, truncated and the info keys: one word each
+        start = offsets[first[0]]
+        self.obs = slice(start, start + leaves[first[0]].size)
+        self.scalars = slice(self.obs.stop, self.obs.stop + len(first) - 1)
+        if any(leaves[i].size != 1 for i in first[1:]):
+            raise TypeError("a reported scalar of the env's State has more than one element")
+        #: (key, numpy dtype kind: "b" bool, "i" / "u" integer, "f" float) per info key
         self.info = [
-            (k, offsets[i], leaves[i].dtype) for k, i in zip(info_keys, first[4:], strict=True)
+            (k, np.dtype(leaves[i].dtype).kind) for k, i in zip(info_keys, first[4:], strict=True)
         ]
 
     def _split(self, order: list[int], itemsize: int) -> list[list[int]]:
@@ -293,10 +307,13 @@ class _Words:
                 if c >= self.num_words:
                     leaves[i] = jnp.reshape(piece, x.shape)
                 elif jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
-                    data = jnp.reshape(piece, _key_data(x).shape)
+                    data = jax.lax.bitcast_convert_type(piece, _key_data(x).dtype)
+                    data = jnp.reshape(data, _key_data(x).shape)
                     leaves[i] = jax.random.wrap_key_data(data, impl=self.key_impls[i])
                 elif x.dtype == jnp.bool_:
                     leaves[i] = jnp.reshape(piece != 0, x.shape)
+                elif x.dtype == jnp.float32:
+                    leaves[i] = jnp.reshape(piece, x.shape)
                 else:
                     value = jax.lax.bitcast_convert_type(piece, x.dtype)
                     leaves[i] = jnp.reshape(value, x.shape)
@@ -308,22 +325,15 @@ class _Words:
             words = np.asarray(bufs[0])
         else:
             words = np.concatenate([np.asarray(b) for b in bufs[: self.num_reported]])
-        real = words.view(np.float32)
-        info: dict[str, Any] = {}
-        for key, at, dtype in self.info:
-            if dtype == np.bool_:
-                info[key] = bool(words[at])
-            elif dtype == np.float32:
-                info[key] = float(real[at])
-            else:
-                info[key] = int(words[at : at + 1].view(dtype)[0])
-        return (
-            real[self.obs].copy(),
-            float(real[self.reward]),
-            bool(words[self.terminated]),
-            bool(words[self.truncated]),
-            info,
-        )
+        scalars = words[self.scalars]
+        reals = scalars.tolist()
+        ints = scalars.view(np.int32).tolist()
+        reward, terminated, truncated, *rest = reals
+        info = {
+            key: value if kind == "f" else (value != 0.0) if kind == "b" else _int(bits, kind)
+            for (key, kind), value, bits in zip(self.info, rest, ints[3:], strict=True)
+        }
+        return words[self.obs].copy(), reward, terminated != 0.0, truncated != 0.0, info
 
 
 Bufs = tuple[jax.Array, ...]
