@@ -584,6 +584,8 @@ class JaxEnv(gymnasium.Env):
         self._bufs: Bufs | None = None
         assert self._fns.words is not None
         self._words = self._fns.words
+        #: the shape of a continuous action (checked at once when it comes as float32)
+        self._float_shape = None if self.jax_env.discrete else self.jax_env.action_shape
 
     @property
     def state(self) -> State | None:
@@ -603,7 +605,10 @@ class JaxEnv(gymnasium.Env):
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._bufs is None:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
-        action = check_action(self.jax_env, action)
+        if type(action) is not np.ndarray or action.shape != self._float_shape:
+            action = check_action(self.jax_env, action)  # else a float32 array of the shape
+        elif action.dtype != np.float32:
+            action = check_action(self.jax_env, action)
         self._bufs = self._fns.step(self._bufs, action)
         if self.render_mode == "human":
             self.render()

@@ -28,6 +28,7 @@
 #include <mujoco/mjxmacro.h>
 #include <mujoco/mujoco.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -273,6 +274,51 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
   return &e->plans.emplace(key, std::move(plan)).first->second;
 }
 
+// The engine and plan of this thread's last call, so that a program stepping the same
+// model call after call finds them without a lock or an allocation. Engines and plans are
+// never freed, so the pointers stay valid; the strings are compared in full (attribute
+// storage may be reused by another program).
+struct LastCall {
+  std::string model, inputs, params, outputs;
+  Engine* engine = nullptr;
+  const Plan* plan = nullptr;
+};
+
+ffi::ErrorOr<const Plan*> CachedPlan(Engine* e, std::string_view model, std::string_view inputs,
+                                     std::string_view params, std::string_view outputs) {
+  thread_local LastCall last;
+  if (last.engine == e && last.model == model && last.inputs == inputs &&
+      last.params == params && last.outputs == outputs) {
+    return last.plan;
+  }
+  const Plan* plan;
+  {
+    std::lock_guard<std::mutex> lock(e->mu);
+    auto planned = PlanFor(e, inputs, params, outputs);
+    if (planned.has_error()) return planned;
+    plan = *planned;
+  }
+  last.model.assign(model);
+  last.inputs.assign(inputs);
+  last.params.assign(params);
+  last.outputs.assign(outputs);
+  last.engine = e;
+  last.plan = plan;
+  return plan;
+}
+
+Engine* CachedEngine(std::string_view model) {
+  thread_local std::string last_key;
+  thread_local Engine* last_engine = nullptr;
+  if (last_engine && last_key == model) return last_engine;
+  Engine* e = FindEngine(model);
+  if (e) {
+    last_key.assign(model);
+    last_engine = e;
+  }
+  return e;
+}
+
 // ------------------------------------------------------------------ one simulation
 
 struct CallArgs {
@@ -356,7 +402,7 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
                     int64_t serial_work, std::string_view inputs, std::string_view params,
                     std::string_view outputs, ffi::RemainingArgs args,
                     ffi::RemainingRets rets) {
-  Engine* e = FindEngine(model_key);
+  Engine* e = CachedEngine(model_key);
   if (!e) {
     return ffi::Error(
         ffi::ErrorCode::kFailedPrecondition,
@@ -365,13 +411,9 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
             "physics='c' runs in a process that built that env first (jaxenvs.make).");
   }
   if (substeps < 0 || threads < 1) return Fail("substeps must be >= 0 and threads >= 1");
-  const Plan* plan;
-  {
-    std::lock_guard<std::mutex> lock(e->mu);
-    auto planned = PlanFor(e, inputs, params, outputs);
-    if (planned.has_error()) return planned.error();
-    plan = *planned;
-  }
+  auto planned = CachedPlan(e, model_key, inputs, params, outputs);
+  if (planned.has_error()) return planned.error();
+  const Plan* plan = *planned;
   size_t nin = plan->inputs.size(), npar = plan->params.size();
   if (args.size() != nin + npar || rets.size() != plan->outputs.size()) {
     return Fail("argument or result count does not match the call's field lists");
@@ -381,6 +423,10 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
   CallArgs call;
   call.plan = plan;
   call.substeps = static_cast<int>(substeps);
+  call.in.reserve(nin);
+  call.in_type.reserve(nin);
+  call.out.reserve(plan->outputs.size());
+  call.out_type.reserve(plan->outputs.size());
   int64_t nsim = -1;
   auto batch_of = [&](const ffi::AnyBuffer& buf, int64_t size, const std::string& name)
       -> ffi::Error {
@@ -450,9 +496,10 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
   }
   // per-simulation model fields: this call's params; fields an earlier call expanded
   // and this one does not give go back to the model's values
-  std::set<std::string> given(plan->params.begin(), plan->params.end());
   for (const std::string& name : pool.expanded) {
-    if (given.count(name)) continue;
+    if (std::find(plan->params.begin(), plan->params.end(), name) != plan->params.end()) {
+      continue;
+    }
     auto* rows = static_cast<mjtNum*>(mjb_expand(pool.batch, name.c_str(), nullptr, nullptr));
     const std::vector<mjtNum>* found;
     {
