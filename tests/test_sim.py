@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import jax
 import mujoco
 import numpy as np
 import pytest
+from mujoco import mjx
 
+import jaxenvs
 from jaxenvs.robots import robot_xml
 from jaxenvs.sim import physics_model
 
@@ -93,3 +96,18 @@ def test_c_engine_hands_back_a_state_mujoco_reset_as_nan(tmp_path):
     assert np.isnan(float(wild.qpos[0])) and np.isnan(float(wild.qvel[0]))
     bad_in = sim.step(None, data.replace(qvel=zero + np.inf), zero)
     assert np.isnan(float(bad_in.qvel[0]))
+
+
+@pytest.mark.parametrize("env_id", ["CartPole-v0", "Reacher-v0", "HexapodWalk-v0"])
+def test_initial_data_from_the_host_model_equals_the_device_models(env_id):
+    """Sim builds its template Data from the host model (no eager JAX ops); it must be the
+    Data MJX makes from the device model: same tree, shapes, dtypes and values."""
+    sim = jaxenvs.make(env_id, physics="mjx").sim
+    ours, theirs = sim._data0, mjx.make_data(sim.mx)
+    ours_leaves, ours_def = jax.tree.flatten(ours)
+    their_leaves, their_def = jax.tree.flatten(theirs)
+    assert ours_def == their_def
+    for a, b in zip(ours_leaves, their_leaves, strict=True):
+        assert isinstance(a, jax.Array)
+        assert a.shape == b.shape and a.dtype == b.dtype
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
