@@ -284,16 +284,18 @@ class HexapodWalk(Env[WalkConfig]):
         return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
     def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, NoExtras]:
-        joint_key, yaw_key, dist_key, angle_key = jax.random.split(key, 4)
+        # one draw for all 21 numbers: each random call is a loop XLA compiles on its own
+        # (on a CPU most of a first call's compile time is the PRNG's)
+        u = jax.random.uniform(key, (21,))
         c = self.config
-        yaw = jax.random.uniform(yaw_key, minval=-math.pi, maxval=math.pi)
+        yaw = math.pi * (2.0 * u[0] - 1.0)
         quat = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
         n = c.init_joint_noise
-        joints = jax.random.uniform(joint_key, (18,), minval=-n, maxval=n)
+        joints = n * (2.0 * u[1:19] - 1.0)
         qpos = jnp.concatenate([jnp.array([0.0, 0.0, c.init_height]), quat, joints])
         low, high = params.target_range[0], params.target_range[1]
-        dist = low + (high - low) * jax.random.uniform(dist_key)
-        angle = jax.random.uniform(angle_key, minval=-math.pi, maxval=math.pi)
+        dist = low + (high - low) * u[19]
+        angle = math.pi * (2.0 * u[20] - 1.0)
         target = jnp.stack([dist * jnp.cos(angle), dist * jnp.sin(angle), 0.01])[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24), mocap_pos=target)
         return data, NoExtras()
@@ -444,11 +446,11 @@ class HexapodOneLeg(Env[OneLegConfig]):
         return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
     def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, OneLegExtras]:
-        joint_key, target_key = jax.random.split(key)
+        u = jax.random.uniform(key, (6,))  # one draw: see HexapodWalk._init
         n = self.config.init_joint_noise
-        qpos = jax.random.uniform(joint_key, (3,), minval=-n, maxval=n)
+        qpos = n * (2.0 * u[:3] - 1.0)
         low, high = params.target_range[0], params.target_range[1]
-        fraction = low + (high - low) * jax.random.uniform(target_key, (3,))
+        fraction = low + (high - low) * u[3:]
         target_q = fraction * JOINT_RANGE[:3]
         mocap = (leg_tip(target_q) + self._hip)[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(3), mocap_pos=mocap)

@@ -232,21 +232,15 @@ class Reacher(Env[ReacherConfig]):
 
     def sample_target(self, key: jax.Array, radius: jax.Array) -> jax.Array:
         """A point uniform in the disk of ``radius`` (area-uniform: r = R sqrt(u))."""
-        radius_key, angle_key = jax.random.split(key)
-        r = radius * jnp.sqrt(jax.random.uniform(radius_key))
-        phi = jax.random.uniform(angle_key, maxval=2 * math.pi)
-        return jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi)])
+        return _disk_point(jax.random.uniform(key, (2,)), radius)
 
     def _init(self, key: jax.Array, params: ReacherParams) -> tuple[mjx.Data, NoExtras]:
         c = self.config
-        angle_key, vel_key, target_key = jax.random.split(key, 3)
-        qpos = jax.random.uniform(
-            angle_key, (2,), minval=-c.init_angle_noise, maxval=c.init_angle_noise
-        )
-        qvel = jax.random.uniform(
-            vel_key, (2,), minval=-c.init_velocity_noise, maxval=c.init_velocity_noise
-        )
-        target = self.sample_target(target_key, params.target_radius)
+        # one draw for all six numbers: each random call is a loop XLA compiles on its own
+        u = jax.random.uniform(key, (6,))
+        qpos = c.init_angle_noise * (2.0 * u[0:2] - 1.0)
+        qvel = c.init_velocity_noise * (2.0 * u[2:4] - 1.0)
+        target = _disk_point(u[4:6], params.target_radius)
         mocap = jnp.concatenate([target, jnp.full((1,), self._target_z)])[None]
         return self.sim.init_data(qpos=qpos, qvel=qvel, mocap_pos=mocap), NoExtras()
 
@@ -286,3 +280,11 @@ class Reacher(Env[ReacherConfig]):
         ctrl_cost = self.config.ctrl_cost_weight * jnp.sum(jnp.square(action))
         reward = -distance - ctrl_cost
         return reward, {"distance": distance, "ctrl_cost": ctrl_cost}
+
+
+def _disk_point(u: jax.Array, radius: jax.Array) -> jax.Array:
+    """The point of the disk of ``radius`` at uniform numbers ``u`` (2,): area-uniform, r =
+    R sqrt(u0), angle 2 pi u1."""
+    r = radius * jnp.sqrt(u[0])
+    phi = 2 * math.pi * u[1]
+    return jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi)])
