@@ -4,8 +4,9 @@ the first call.
 * ``memory``: peak resident memory above a bare ``import jaxenvs`` while 2048 walkers
   (``HexapodWalk-v0``, default and randomised params) step 20 times under ``physics="c"``,
   each in a fresh process: once compiling (cold), once loading the programs from JAX's
-  persistent cache (warm). The step is jitted with the state donated, as a training
-  loop's scan updates it in place.
+  persistent cache (warm); and 16 randomised walkers, cold, for the compiler's own share
+  of a cold peak. The step is jitted with the state donated, as a training loop's scan
+  updates it in place.
 * ``first_call``: seconds from ``jaxenvs.make(ID, num_envs=16, physics="c")`` to the end of
   the first jitted reset and step, per task, in a fresh process each.
 
@@ -77,6 +78,11 @@ def main() -> None:
                 row = _run(code)
                 rows.append({"measure": "memory", **row})
                 print(row, flush=True)
+    # the compiler's share of a cold peak: the same programs for a batch of 16
+    with tempfile.TemporaryDirectory() as cache:
+        row = _run(_MEMORY.format(n=16, r=True, cache=cache, which="cold"))
+        rows.append({"measure": "memory", **row})
+        print(row, flush=True)
     for task in jaxenvs.list_envs():  # every built-in task
         row = _run(_FIRST.format(task=task))
         rows.append({"measure": "first_call", **row})
