@@ -32,6 +32,11 @@ a warning of a full constraint arena, a bad control, or an error) comes back wit
 field but ``time`` NaN, on any step, the first of an episode included, so the task's
 divergence check terminates it as under MJX.
 
+**Timers.** MuJoCo's Python bindings install a default clock as ``mjcb_time`` at import,
+timing every stage of every step in the process (``mjData.timer``), a quarter of a small
+model's step. Native calls turn that default clock off (``engine.cc``); a clock installed
+with ``mujoco.set_mjcb_time(fn)`` is kept.
+
 **Params.** ``sim.model_with(fields)`` names model fields by their MuJoCo names
 (``body_mass``, ``actuator_gear``, ...). Their values travel with each call, per env, into
 per-simulation model fields of the batch: memory grows with threads, not with envs.

@@ -299,3 +299,42 @@ def test_a_c_batch_spread_over_two_devices_steps_as_on_one():
     assert done.returncode == 0, done.stderr[-2000:]
     assert "DEVICES 2" in done.stdout and "DEVICES 1" in done.stdout
     assert "SAME True" in done.stdout
+
+
+def test_native_calls_turn_off_only_the_bindings_default_clock():
+    """MuJoCo's Python bindings time every step's stages with a default clock (a quarter of
+    a small model's step); native calls turn that clock off, and keep one a user set."""
+    import itertools
+
+    import mujoco
+
+    benv = jaxenvs.make("Reacher-v0", physics="c", num_envs=2)
+    step = jax.jit(benv.step)
+    state = jax.jit(benv.reset)(jax.random.key(0))
+    actions = jnp.zeros((2, 2))
+    model = benv.env.sim.physics_mj_model
+
+    def timed() -> float:  # MuJoCo's step timer after one mj_step of a fresh MjData
+        data = mujoco.MjData(model)
+        mujoco.mj_step(model, data)
+        return float(data.timer[int(mujoco.mjtTimer.mjTIMER_STEP)].duration)
+
+    try:
+        mujoco.set_mjcb_time(None)  # the bindings' default clock
+        assert timed() > 0
+        jax.block_until_ready(step(state, actions))
+        assert (timed() == 0) != NATIVE_OFF  # native: off; callback path: untouched
+        ticks = itertools.count()
+
+        def clock() -> float:
+            return float(next(ticks))
+
+        mujoco.set_mjcb_time(clock)
+        if NATIVE_OFF:  # mujoco.batch refuses a Python clock, naming it
+            with pytest.raises(Exception, match="mjcb_time"):
+                jax.block_until_ready(step(state, actions))
+        else:
+            jax.block_until_ready(step(state, actions))
+        assert mujoco.get_mjcb_time() is clock and timed() > 0
+    finally:
+        mujoco.set_mjcb_time(None)

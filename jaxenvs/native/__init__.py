@@ -91,7 +91,33 @@ def library() -> ctypes.CDLL | None:
     jax.ffi.register_ffi_target(
         TARGET, jax.ffi.pycapsule(lib.JaxenvsMjStep), platform="cpu", api_version=1
     )
+    _learn_default_clock(lib)
     return lib
+
+
+def _learn_default_clock(lib: ctypes.CDLL) -> None:
+    """Tell the engine which ``mjcb_time`` is the Python bindings' default clock.
+
+    The bindings install it at import (and again on ``mujoco.set_mjcb_time(None)``), which
+    turns on MuJoCo's per-stage timers (``mjData.timer``) process-wide: a quarter of a
+    small model's step. Native calls turn it off (engine.cc, ``QuietDefaultClock``); a
+    clock set with ``mujoco.set_mjcb_time(fn)`` is another pointer and stays.
+    """
+    import mujoco
+
+    lib.jaxenvs_clock.restype = ctypes.c_void_p
+    lib.jaxenvs_set_clock.argtypes = [ctypes.c_void_p]
+    lib.jaxenvs_set_default_clock.argtypes = [ctypes.c_void_p]
+    users = mujoco.get_mjcb_time()
+    saved = lib.jaxenvs_clock()
+    mujoco.set_mjcb_time(None)  # the bindings' default
+    default = lib.jaxenvs_clock()
+    if users is not None:
+        mujoco.set_mjcb_time(users)
+    else:
+        lib.jaxenvs_set_clock(saved)
+    if default:
+        lib.jaxenvs_set_default_clock(default)
 
 
 def available() -> bool:

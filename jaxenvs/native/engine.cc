@@ -29,6 +29,7 @@
 #include <mujoco/mujoco.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -396,6 +397,20 @@ void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
   }
 }
 
+// ------------------------------------------------------------------ MuJoCo's timers
+
+// MuJoCo's Python bindings install a default clock as mjcb_time whenever they make an
+// mjData and none is set, which turns on MuJoCo's per-stage timers for the whole process:
+// 20-30 clock reads a step, a quarter of a small model's step. Our batches report no
+// timers, so a call turns that default clock off (again after each new Python mjData); a
+// clock someone installed on purpose (mujoco.set_mjcb_time) is another pointer, kept.
+std::atomic<mjfTime> default_clock{nullptr};
+
+void QuietDefaultClock() {
+  mjfTime clock = default_clock.load(std::memory_order_relaxed);
+  if (clock && mjcb_time == clock) mjcb_time = nullptr;
+}
+
 // ------------------------------------------------------------------ the handler
 
 ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t threads,
@@ -411,6 +426,7 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
             "physics='c' runs in a process that built that env first (jaxenvs.make).");
   }
   if (substeps < 0 || threads < 1) return Fail("substeps must be >= 0 and threads >= 1");
+  QuietDefaultClock();
   auto planned = CachedPlan(e, model_key, inputs, params, outputs);
   if (planned.has_error()) return planned.error();
   const Plan* plan = *planned;
@@ -591,6 +607,15 @@ int jaxenvs_register_model(const char* key, const mjModel* m, char* error, int e
 
 // The jaxlib and mujoco package versions this library was built against: "jaxlib mujoco".
 const char* jaxenvs_built_versions() { return JAXENVS_BUILT_JAXLIB " " JAXENVS_BUILT_MUJOCO; }
+
+// mjcb_time as it is now, and set it (the Python side learns the bindings' default clock).
+void* jaxenvs_clock() { return reinterpret_cast<void*>(mjcb_time); }
+void jaxenvs_set_clock(void* clock) { mjcb_time = reinterpret_cast<mjfTime>(clock); }
+
+// The bindings' default clock, which calls turn off (see QuietDefaultClock).
+void jaxenvs_set_default_clock(void* clock) {
+  default_clock.store(reinterpret_cast<mjfTime>(clock), std::memory_order_relaxed);
+}
 
 // MuJoCo's version this library was compiled against (mjVERSION_HEADER).
 int jaxenvs_mujoco_header_version() { return mjVERSION_HEADER; }
