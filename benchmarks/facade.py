@@ -1,11 +1,13 @@
 """Steps/s of the Gymnasium facade next to Gymnasium's own env of the same kind.
 
 Single env: ``gymnasium.make("jaxenvs/ID")`` (with the wrappers ``make`` adds) and the raw
-``JaxEnv``, against ``gymnasium.make(PEER)``. Vector: ``gymnasium.make_vec("jaxenvs/ID",
-N, "vector_entry_point")`` against ``gymnasium.make_vec(PEER, N, "sync")``
-(``SyncVectorEnv``). Random actions, drawn before timing; episodes end and reset as they
-do in use. Rounds alternate ours and the peer so that machine noise hits both alike; the
-best round is reported (and all rounds in the JSON).
+``JaxEnv``, against ``gymnasium.make(PEER)``, as shipped (MuJoCo's Python bindings time every
+step's stages) and with MuJoCo's timers off, as our native engine leaves them. Vector:
+``gymnasium.make_vec("jaxenvs/ID", N, "vector_entry_point")`` against
+``gymnasium.make_vec(PEER, N, "sync")`` (``SyncVectorEnv``), the same two ways. Random
+actions, drawn before timing; episodes end and reset as they do in use. Rounds alternate
+ours and the peer so that machine noise hits both alike; the best round is reported (and
+all rounds in the JSON).
 
     python benchmarks/facade.py --tasks CartPole-v0 Reacher-v0 --num-envs 1024 \\
         --json facade_cpu2_cartpole_reacher
@@ -14,14 +16,17 @@ best round is reported (and all rounds in the JSON).
 from __future__ import annotations
 
 import argparse
+import functools
 import time
 from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
+import mujoco
 import results_io
 
 import jaxenvs  # noqa: F401  (registers jaxenvs/<id>)
+from jaxenvs import native
 
 PEERS = {"CartPole-v0": "CartPole-v1", "Reacher-v0": "Reacher-v5"}
 
@@ -55,6 +60,18 @@ def time_vector(envs: gym.vector.VectorEnv, steps: int, seed: int = 0) -> float:
     return steps * envs.num_envs / (time.perf_counter() - start)
 
 
+def _peer_clock(off: bool) -> None:
+    """MuJoCo's stage clock for a peer's round: as a user of the peer has it (the Python
+    bindings' default clock, which times every step's stages) or off, as our native engine
+    leaves it in this process (docs/engines.md, "MuJoCo's stage timers")."""
+    if off:
+        lib = native.library()
+        assert lib is not None
+        lib.jaxenvs_set_clock(None)
+    else:
+        mujoco.set_mjcb_time(None)  # the bindings' default clock
+
+
 def _rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str, list[float]]:
     out: dict[str, list[float]] = {k: [] for k in fns}
     for _ in range(rounds):
@@ -86,10 +103,22 @@ def bench_task(
     if peer is not None:
         peer_env = gym.make(peer)
         peer_vec = gym.make_vec(peer, num_envs, vectorization_mode="sync")
-        single[f"Gymnasium {peer}"] = lambda: time_single(peer_env, steps)
-        vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}"] = lambda: time_vector(
-            peer_vec, peer_vec_steps
-        )
+
+        def as_shipped(fn: Callable[[], float]) -> Callable[[], float]:
+            return lambda: (_peer_clock(off=False), fn())[1]
+
+        def timers_off(fn: Callable[[], float]) -> Callable[[], float]:
+            return lambda: (_peer_clock(off=True), fn())[1]
+
+        one = functools.partial(time_single, peer_env, steps)
+        many = functools.partial(time_vector, peer_vec, peer_vec_steps)
+        single[f"Gymnasium {peer}"] = as_shipped(one)
+        vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}"] = as_shipped(many)
+        if native.available():
+            single[f"Gymnasium {peer}, MuJoCo timers off"] = timers_off(one)
+            vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}, MuJoCo timers off"] = timers_off(
+                many
+            )
     result = {
         "task": env_id,
         "peer": peer,
@@ -111,8 +140,8 @@ def report(result: dict[str, Any]) -> None:
         for name, value in best.items():
             print(f"  {kind:6s}  {name:45s} {value:12,.0f} steps/s")
         names = list(best)
-        if len(names) >= 2 and result["peer"]:
-            print(f"  {kind:6s}  ratio ours/peer: {best[names[0]] / best[names[-1]]:.2f}x")
+        for peer in (n for n in names if not n.startswith("ours")):
+            print(f"  {kind:6s}  ours/{peer}: {best[names[0]] / best[peer]:.2f}x")
     print(
         f"  first call (compile) single {result['first_call_s']['single']:.1f} s, "
         f"vector {result['first_call_s']['vector']:.1f} s"

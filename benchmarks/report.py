@@ -627,21 +627,21 @@ def main_command(recs: list[Rec]) -> Cells:
 
 def facade_c(recs: list[Rec]) -> Cells:
     (rec,) = recs
-    cells = [["mode", "who", "envs", "steps/s (best of rounds)", "ours / peer", "first call"]]
+    cells = [["mode", "who", "envs", "steps/s (best of rounds)", "ours / peer(s)", "first call"]]
     for mode in ("single", "vector"):
         found = rows(rec, mode=mode)
-        peer = next(r for r in found if not r["who"].startswith("ours"))
-        peer_best = max(peer["steps_per_s_rounds"])
+        peers = [max(r["steps_per_s_rounds"]) for r in found if not r["who"].startswith("ours")]
         for r in found:
             b = max(r["steps_per_s_rounds"])
             is_ours = r["who"].startswith("ours")
+            against = " / ".join(f"**{ratio(b, p)}**" for p in peers)  # in the peers' order
             cells.append(
                 [
                     "one env" if mode == "single" else "vector",
                     r["who"],
                     str(r["num_envs"]),
                     rate(b),
-                    f"**{ratio(b, peer_best)}**" if is_ours else "",
+                    against if is_ours else "",
                     secs(r["first_call_s"]) if r["first_call_s"] is not None else "",
                 ]
             )
