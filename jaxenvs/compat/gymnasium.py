@@ -171,6 +171,7 @@ _REPORTED = ("obs", "reward", "terminated", "truncated")
 
 
 def _is_word(leaf: Any) -> bool:
+    """True for a leaf stored as 32-bit words: 4-byte dtypes, bools, uint32 key data."""
     dtype = leaf.dtype
     if jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key):
         return _key_data(leaf).dtype == jnp.uint32
