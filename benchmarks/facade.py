@@ -72,6 +72,16 @@ def _peer_clock(off: bool) -> None:
         mujoco.set_mjcb_time(None)  # the bindings' default clock
 
 
+def _with_clock(off: bool, fn: Callable[[], float]) -> Callable[[], float]:
+    """``fn`` timed with MuJoCo's clock set as :func:`_peer_clock` sets it."""
+
+    def timed() -> float:
+        _peer_clock(off)
+        return fn()
+
+    return timed
+
+
 def _rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str, list[float]]:
     out: dict[str, list[float]] = {k: [] for k in fns}
     for _ in range(rounds):
@@ -104,21 +114,12 @@ def bench_task(
         peer_env = gym.make(peer)
         peer_vec = gym.make_vec(peer, num_envs, vectorization_mode="sync")
 
-        def as_shipped(fn: Callable[[], float]) -> Callable[[], float]:
-            return lambda: (_peer_clock(off=False), fn())[1]
-
-        def timers_off(fn: Callable[[], float]) -> Callable[[], float]:
-            return lambda: (_peer_clock(off=True), fn())[1]
-
         one = functools.partial(time_single, peer_env, steps)
         many = functools.partial(time_vector, peer_vec, peer_vec_steps)
-        single[f"Gymnasium {peer}"] = as_shipped(one)
-        vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}"] = as_shipped(many)
-        if native.available():
-            single[f"Gymnasium {peer}, MuJoCo timers off"] = timers_off(one)
-            vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}, MuJoCo timers off"] = timers_off(
-                many
-            )
+        clocks = [(False, "")] + ([(True, ", MuJoCo timers off")] if native.available() else [])
+        for off, suffix in clocks:
+            single[f"Gymnasium {peer}{suffix}"] = _with_clock(off, one)
+            vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}{suffix}"] = _with_clock(off, many)
     result = {
         "task": env_id,
         "peer": peer,

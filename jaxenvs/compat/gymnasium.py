@@ -240,15 +240,14 @@ class _Words:
             self.chunks += self._split(others[name], np.dtype(name).itemsize)
         # where each reported value lies in the words of the first buffers
         offsets: dict[int, int] = {}
+        buffer_of: dict[int, int] = {}
         at = 0
-        for chunk in self.chunks[: self.num_words]:
+        for c, chunk in enumerate(self.chunks[: self.num_words]):
             for i in chunk:
-                offsets[i] = at
+                offsets[i], buffer_of[i] = at, c
                 at += self._words(i)
         #: buffers holding the reported leaves
-        self.num_reported = 1 + max(
-            next(c for c, chunk in enumerate(self.chunks) if i in chunk) for i in first
-        )
+        self.num_reported = 1 + max(buffer_of[i] for i in first)
         # obs, then reward, terminated, truncated and the info keys: one word each
         start = offsets[first[0]]
         self.obs = slice(start, start + leaves[first[0]].size)

@@ -275,21 +275,21 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
   return &e->plans.emplace(key, std::move(plan)).first->second;
 }
 
-// The engine and plan of this thread's last call, so that a program stepping the same
-// model call after call finds them without a lock or an allocation. Engines and plans are
-// never freed, so the pointers stay valid; the strings are compared in full (attribute
+// The plan of this thread's last call, so that a program stepping the same model call
+// after call finds it without a lock or an allocation. Engines (one per model) and plans
+// are never freed, so the pointers stay valid; the strings are compared in full (attribute
 // storage may be reused by another program).
 struct LastCall {
-  std::string model, inputs, params, outputs;
+  std::string inputs, params, outputs;
   Engine* engine = nullptr;
   const Plan* plan = nullptr;
 };
 
-ffi::ErrorOr<const Plan*> CachedPlan(Engine* e, std::string_view model, std::string_view inputs,
-                                     std::string_view params, std::string_view outputs) {
+ffi::ErrorOr<const Plan*> CachedPlan(Engine* e, std::string_view inputs, std::string_view params,
+                                     std::string_view outputs) {
   thread_local LastCall last;
-  if (last.engine == e && last.model == model && last.inputs == inputs &&
-      last.params == params && last.outputs == outputs) {
+  if (last.engine == e && last.inputs == inputs && last.params == params &&
+      last.outputs == outputs) {
     return last.plan;
   }
   const Plan* plan;
@@ -299,7 +299,6 @@ ffi::ErrorOr<const Plan*> CachedPlan(Engine* e, std::string_view model, std::str
     if (planned.has_error()) return planned;
     plan = *planned;
   }
-  last.model.assign(model);
   last.inputs.assign(inputs);
   last.params.assign(params);
   last.outputs.assign(outputs);
@@ -399,11 +398,11 @@ void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
 
 // ------------------------------------------------------------------ MuJoCo's timers
 
-// MuJoCo's Python bindings install a default clock as mjcb_time whenever they make an
-// mjData and none is set, which turns on MuJoCo's per-stage timers for the whole process:
-// 20-30 clock reads a step, a quarter of a small model's step. Our batches report no
-// timers, so a call turns that default clock off (again after each new Python mjData); a
-// clock someone installed on purpose (mujoco.set_mjcb_time) is another pointer, kept.
+// MuJoCo's Python bindings install a default clock as mjcb_time at import (and again on
+// mujoco.set_mjcb_time(None)), which turns on MuJoCo's per-stage timers for the whole
+// process: 20-30 clock reads a step, a quarter of a small model's step. Our batches report
+// no timers, so each call turns that default clock off; a clock someone installed on
+// purpose (mujoco.set_mjcb_time(fn)) is another pointer, kept.
 std::atomic<mjfTime> default_clock{nullptr};
 
 void QuietDefaultClock() {
@@ -427,7 +426,7 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
   }
   if (substeps < 0 || threads < 1) return Fail("substeps must be >= 0 and threads >= 1");
   QuietDefaultClock();
-  auto planned = CachedPlan(e, model_key, inputs, params, outputs);
+  auto planned = CachedPlan(e, inputs, params, outputs);
   if (planned.has_error()) return planned.error();
   const Plan* plan = *planned;
   size_t nin = plan->inputs.size(), npar = plan->params.size();
