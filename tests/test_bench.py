@@ -39,6 +39,9 @@ def test_bench_writes_valid_json_beside_the_peers(tmp_path) -> None:
     _check_result(res)
     assert res["physics"] == "c" and res["threads"] >= 1
     assert out["machine"]["backend"] == "cpu"
+    every_peer = {"gymnasium", "gymnasium SyncVectorEnv", "envpool", "mujoco.rollout", "gymnax"}
+    assert {r["name"] for r in out["results"]} == {"jaxenvs", *every_peer}  # ran or skipped
+    assert all(r["reason"] for r in out["results"] if r.get("skipped"))
     ran = [r for r in out["results"] if r["name"] != "jaxenvs" and not r.get("skipped")]
     assert {"gymnasium", "mujoco.rollout"} <= {r["name"] for r in ran}
     assert all(r["env_steps_per_s"] > 0 and r["task"] == "CartPole-v0" for r in ran)
