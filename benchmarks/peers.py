@@ -18,6 +18,7 @@ import results_io
 
 import jaxenvs
 from jaxenvs import bench
+from jaxenvs.bench.peers import peer_runners
 
 #: CPU targets: task -> (peer name, peer variant, minimum ratio ours / peer).
 TARGETS = (
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
         for b in args.batches:
             print(f"# compiling {task} x{b}", flush=True)
             runners.append(bench.prepare_ours(task, b, "full", args.steps))
-        for p in bench.peer_runners(task, args.peer_envs, max(args.batches)):
+        for p in peer_runners(task, args.peer_envs, max(args.batches)):
             if isinstance(p, bench.Runner):
                 runners.append(p)
             else:

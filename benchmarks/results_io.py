@@ -28,7 +28,7 @@ run of one command on one machine:
 
 ``rows`` are flat records (numbers, strings, booleans, null, lists of those). Rows of
 ``jaxenvs bench`` carry ``physics`` (the engine of that row). Files measured before this
-schema were converted once (``studies/convert_results_v1.py``); what they lacked (machine,
+schema were converted once (benchmarks/NOTES.md); what they lacked (machine,
 commit, versions, date) was recovered from git history and the notes of the time, and each
 such field is listed in ``recovered`` with its source and marked in its value, e.g.
 ``"commit": "290f6ff (recovered: the commit that added the file)"``.

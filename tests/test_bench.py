@@ -8,6 +8,7 @@ import sys
 import pytest
 
 from jaxenvs import bench
+from jaxenvs.bench import peers
 from jaxenvs.cli import main
 
 
@@ -26,14 +27,28 @@ def _check_result(res: dict) -> None:
     assert res["first_call_s"] >= res["compile_s"] > 0
 
 
-def test_bench_writes_valid_json(tmp_path) -> None:
-    """One engine (C: no physics to compile); the full tier times both side by side."""
-    out = _bench(tmp_path / "bench.json", "--physics", "c")
-    (res,) = out["results"]
+def test_bench_writes_valid_json_beside_the_peers(tmp_path) -> None:
+    """One engine (C: no physics to compile); the full tier times both side by side. The
+    peers installed with the package run in the same rounds, the others are listed skipped,
+    and the ratio table compares ours with each peer that ran."""
+    plot = tmp_path / "bench.png"
+    peers_and_plot = ("--peers", "--peer-envs", "2", "--plot", str(plot))
+    out = _bench(tmp_path / "bench.json", "--physics", "c", *peers_and_plot)
+    ours = [r for r in out["results"] if r["name"] == "jaxenvs"]
+    (res,) = ours
     _check_result(res)
     assert res["physics"] == "c" and res["threads"] >= 1
     assert out["machine"]["backend"] == "cpu"
-    assert out["ratios"] == []
+    every_peer = {"gymnasium", "gymnasium SyncVectorEnv", "envpool", "mujoco.rollout", "gymnax"}
+    assert {r["name"] for r in out["results"]} == {"jaxenvs", *every_peer}  # ran or skipped
+    assert all(r["reason"] for r in out["results"] if r.get("skipped"))
+    ran = [r for r in out["results"] if r["name"] != "jaxenvs" and not r.get("skipped")]
+    assert {"gymnasium", "mujoco.rollout"} <= {r["name"] for r in ran}
+    assert all(r["env_steps_per_s"] > 0 and r["task"] == "CartPole-v0" for r in ran)
+    assert len(out["ratios"]) == len(ran)
+    for q in out["ratios"]:
+        assert q["ratio"] == pytest.approx(res["env_steps_per_s"] / q["peer_steps_per_s"])
+    assert plot.read_bytes().startswith(b"\x89PNG")
 
 
 @pytest.mark.full  # compiles the MJX rollout as well: the full tier
@@ -50,8 +65,8 @@ def test_bench_times_both_engines_by_default_on_a_cpu(tmp_path) -> None:
 def test_missing_peer_is_reported_skipped(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(sys.modules, "envpool", None)  # import envpool -> ImportError
     monkeypatch.setitem(sys.modules, "gymnax", None)
-    peers = bench.peer_runners("CartPole-v0", num_envs=2, gymnax_envs=2, sync_envs=2)
-    by_name = {p.name: p for p in peers}
+    found = peers.peer_runners("CartPole-v0", num_envs=2, gymnax_envs=2, sync_envs=2)
+    by_name = {p.name: p for p in found}
     assert set(by_name) == {
         "gymnasium",
         "gymnasium SyncVectorEnv",
@@ -60,7 +75,7 @@ def test_missing_peer_is_reported_skipped(monkeypatch: pytest.MonkeyPatch) -> No
         "gymnax",
     }
     for name in ("envpool", "gymnax"):
-        assert isinstance(by_name[name], bench.Skipped)
+        assert isinstance(by_name[name], peers.Skipped)
         assert by_name[name].reason.startswith("not installed")
         assert by_name[name].as_dict()["skipped"] is True
     rollout = by_name["mujoco.rollout"]
@@ -82,11 +97,11 @@ def test_ratios_compare_best_batch_to_each_peer() -> None:
         {"name": "envpool", "task": "T", "variant": "X", "num_envs": 2, "env_steps_per_s": 20},
         {"name": "gymnax", "task": "T", "variant": "Y", "skipped": True, "reason": "r"},
     ]
-    (row,) = bench.ratios(results)
+    (row,) = peers.ratios(results)
     assert row["our_envs"] == 8 and row["ratio"] == pytest.approx(2.0)
     assert row["physics"] == "mjx"  # results without an engine are MJX's
     c_result = {**results[1], "physics": "c", "env_steps_per_s": 60}
-    rows = {r["physics"]: r for r in bench.ratios([*results, c_result])}
+    rows = {r["physics"]: r for r in peers.ratios([*results, c_result])}
     assert rows["c"]["ratio"] == pytest.approx(3.0) and rows["mjx"]["ratio"] == pytest.approx(2.0)
 
 

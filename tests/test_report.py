@@ -110,3 +110,14 @@ def test_every_result_file_follows_the_schema_and_backs_a_table() -> None:
     recs = results_io.load_all()
     used = {f for t in report.TABLES.values() for f in t.files}
     assert set(recs) == used
+
+
+def test_a_marker_no_table_module_defines_is_one_line_naming_it(tree: Path) -> None:
+    doc = tree / "RESULTS.md"
+    doc.write_text(
+        doc.read_text() + "\n<!-- report:no-such-table -->\n<!-- /report:no-such-table -->\n"
+    )
+    res = check(tree)
+    assert res.returncode == 2
+    (line,) = res.stderr.strip().splitlines()
+    assert "unknown table 'no-such-table'" in line and "benchmarks/tables/" in line

@@ -13,10 +13,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from jaxenvs import files
 from jaxenvs.commands import checks
+
+if TYPE_CHECKING:
+    from jaxenvs.bench import Runner
 
 HELP = "measure env steps/s over a batch sweep, optionally beside Gymnasium/EnvPool/MuJoCo"
 
@@ -94,6 +98,77 @@ def _validate(args: argparse.Namespace, ids: list[str]) -> list[str]:
     return tasks
 
 
+def _runners(
+    args: argparse.Namespace, tasks: list[str], log: Callable[[str], None]
+) -> tuple[list[Runner], list[dict[str, Any]]]:
+    """Ours compiled at every (task, engine, batch, mode); with ``--peers``, each task's peers.
+
+    Returns the runners and the peers that could not run here (as result dicts)."""
+    import jax
+
+    from jaxenvs import bench, machine
+
+    engines = args.physics or (["mjx", "c"] if jax.default_backend() == "cpu" else ["mjx"])
+    threads = args.threads or machine.cpu_threads()
+    runners: list[Runner] = []
+    skipped: list[dict[str, Any]] = []
+    for task in tasks:
+        for physics in dict.fromkeys(engines):
+            for b in args.batches:
+                for mode in args.modes:
+                    log(f"compiling {task} x{b} {mode} ({physics})")
+                    devices = args.devices if mode == "full" else None
+                    runners.append(bench.prepare_ours(task, b, mode, args.steps, devices, physics))
+        if args.peers:
+            from jaxenvs.bench import peers
+
+            log(f"preparing peers of {task}")
+            for p in peers.peer_runners(task, args.peer_envs, max(args.batches), threads):
+                if isinstance(p, bench.Runner):
+                    runners.append(p)
+                else:
+                    skipped.append(p.as_dict())
+    return runners, skipped
+
+
+def _results_table(results: list[dict[str, Any]]) -> list[list[Any]]:
+    from jaxenvs.bench import is_ours
+
+    rows: list[list[Any]] = [["task", "who", "variant", "envs", "env steps/s", "first call s"]]
+    for r in results:
+        if r.get("skipped"):
+            rows.append([r["task"], r["name"], r["variant"], "-", "skipped: " + r["reason"], "-"])
+            continue
+        first = r.get("first_call_s")
+        who = f"jaxenvs ({r.get('physics', 'mjx')})" if is_ours(r) else r["name"]
+        rows.append(
+            [
+                r["task"],
+                who,
+                r["variant"],
+                r["num_envs"],
+                f"{r['env_steps_per_s']:,.0f}",
+                "-" if first is None else f"{first:.1f}",
+            ]
+        )
+    return rows
+
+
+def _ratio_table(ratio_rows: list[dict[str, Any]]) -> list[list[Any]]:
+    table: list[list[Any]] = [["task", "ours (envs)", "peer", "peer steps/s", "ours / peer"]]
+    for q in ratio_rows:
+        table.append(
+            [
+                q["task"],
+                f"{q['ours']:,.0f} ({q['physics']}, {q['our_envs']})",
+                q["peer"],
+                f"{q['peer_steps_per_s']:,.0f}",
+                f"{q['ratio']:.2f}x",
+            ]
+        )
+    return table
+
+
 def run(args: argparse.Namespace) -> int:
     import jaxenvs
     from jaxenvs import bench
@@ -105,65 +180,18 @@ def run(args: argparse.Namespace) -> int:
 
     info = bench.machine()
     print(f"# {info['host']} {info['device']} x{info['device_count']} jax {info['jax']}")
-    runners: list[bench.Runner] = []
-    skipped: list[dict[str, Any]] = []
-    import jax
-
-    from jaxenvs import machine
-
-    engines = args.physics or (["mjx", "c"] if jax.default_backend() == "cpu" else ["mjx"])
-    threads = args.threads or machine.cpu_threads()
-    for task in tasks:
-        for physics in dict.fromkeys(engines):
-            for b in args.batches:
-                for mode in args.modes:
-                    log(f"compiling {task} x{b} {mode} ({physics})")
-                    devices = args.devices if mode == "full" else None
-                    runners.append(bench.prepare_ours(task, b, mode, args.steps, devices, physics))
-        if args.peers:
-            log(f"preparing peers of {task}")
-            for p in bench.peer_runners(task, args.peer_envs, max(args.batches), threads):
-                if isinstance(p, bench.Runner):
-                    runners.append(p)
-                else:
-                    skipped.append(p.as_dict())
+    runners, skipped = _runners(args, tasks, log)
     log(f"timing {len(runners)} runners, {args.repeats} interleaved rounds")
-    results = bench.time_runners(runners, args.repeats, args.target_s, log)
-    results += skipped
+    results = bench.time_runners(runners, args.repeats, args.target_s, log) + skipped
+    print(bench.format_table(_results_table(results)))
+    ratio_rows: list[dict[str, Any]] = []
+    if args.peers:
+        from jaxenvs.bench import peers
 
-    rows: list[list[Any]] = [["task", "who", "variant", "envs", "env steps/s", "first call s"]]
-    for r in results:
-        if r.get("skipped"):
-            rows.append([r["task"], r["name"], r["variant"], "-", "skipped: " + r["reason"], "-"])
-            continue
-        first = r.get("first_call_s")
-        who = f"jaxenvs ({r.get('physics', 'mjx')})" if bench.is_ours(r) else r["name"]
-        rows.append(
-            [
-                r["task"],
-                who,
-                r["variant"],
-                r["num_envs"],
-                f"{r['env_steps_per_s']:,.0f}",
-                "-" if first is None else f"{first:.1f}",
-            ]
-        )
-    print(bench.format_table(rows))
-    ratio_rows = bench.ratios(results)
+        ratio_rows = peers.ratios(results)
     if ratio_rows:
         print()
-        table: list[list[Any]] = [["task", "ours (envs)", "peer", "peer steps/s", "ours / peer"]]
-        for q in ratio_rows:
-            table.append(
-                [
-                    q["task"],
-                    f"{q['ours']:,.0f} ({q['physics']}, {q['our_envs']})",
-                    q["peer"],
-                    f"{q['peer_steps_per_s']:,.0f}",
-                    f"{q['ratio']:.2f}x",
-                ]
-            )
-        print(bench.format_table(table))
+        print(bench.format_table(_ratio_table(ratio_rows)))
     out = {
         "machine": info,
         "args": {k: v for k, v in vars(args).items() if not k.startswith("_")},
@@ -175,5 +203,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         files.write_text(args.json, json.dumps(out, indent=2) + "\n")
     if args.plot:
-        bench.plot(results, args.plot)
+        from jaxenvs.bench.plot import plot
+
+        plot(results, args.plot)
     return 0

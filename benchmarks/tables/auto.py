@@ -1,0 +1,82 @@
+"""physics='auto' on a CPU: both engines over a batch sweep with auto's pick, and the C
+engine's costs (memory, first call)."""
+
+from __future__ import annotations
+
+from .common import Cells, Rec, Table, by_engine, rate, rows, secs
+
+
+def engines_sweep(recs: list[Rec]) -> Cells:
+    """Both engines at each batch size, what physics='auto' picks there (the task's class
+    attribute ``cpu_mjx_from``, read from jaxenvs), and auto over the faster engine."""
+    from jaxenvs import registry
+    from jaxenvs.core import cpu_auto
+
+    cells = [
+        [
+            "task",
+            "envs",
+            "MJX",
+            "C",
+            "auto picks",
+            "auto / faster",
+            "MJX first call",
+            "C first call",
+        ]
+    ]
+    for rec, task, mjx, c in by_engine(recs):
+        factory = registry.spec(task).factory
+        by_c = {r["num_envs"]: r for r in c}
+        for m in (m for m in mjx if m["num_envs"] in by_c):
+            n = m["num_envs"]
+            cr = by_c[n]
+            pick = cpu_auto(factory, n, backend="cpu") or getattr(factory, "cpu_physics", "mjx")
+            got = (m if pick == "mjx" else cr)["env_steps_per_s"]
+            fast = max(m["env_steps_per_s"], cr["env_steps_per_s"])
+            cells.append(
+                [
+                    task,
+                    f"{n:,}",
+                    rate(m["env_steps_per_s"]),
+                    rate(cr["env_steps_per_s"]),
+                    str(pick),
+                    f"{got / fast:.2f}" + ("" if got / fast >= 0.9 else " (**below 0.9**)"),
+                    secs(m["first_call_s"]),
+                    secs(cr["first_call_s"]),
+                ]
+            )
+        for r in rows(rec, task=task):
+            if r.get("name") in ("mujoco.rollout", "envpool") and not r.get("skipped"):
+                who = f"{r['name']} {r.get('variant', '')}".strip()
+                cells.append(
+                    [task, f"{r['num_envs']:,}", "", "", who, rate(r["env_steps_per_s"]), "", ""]
+                )
+    return cells
+
+
+def c_costs(recs: list[Rec]) -> Cells:
+    (rec,) = recs
+    cells = [["measure", "what", "figure"]]
+    for r in rows(rec, measure="memory"):
+        params = "randomised" if r["randomize"] else "default"
+        cache = r.get("compile_cache", "cold")
+        what = f"{r['envs']:,} walkers, {params} params, {cache} compile cache"
+        cells.append(
+            ["peak RSS above `import jaxenvs`", what, f"{r['peak_mib_above_import']:.0f} MiB"]
+        )
+    for r in rows(rec, measure="first_call"):
+        cells.append(["first reset + step, 16 envs", r["task"], secs(r["first_call_s"])])
+    return cells
+
+
+def _sweep_files(cores: int) -> tuple[str, ...]:
+    return tuple(
+        f"engines_sweep_cpu{cores}_{t}" for t in ("cartpolev0", "reacherv0", "hexapodwalkv0")
+    )
+
+
+TABLES = {
+    "engines-sweep-cpu16": Table(_sweep_files(16), engines_sweep),
+    "engines-sweep-cpu2": Table(_sweep_files(2), engines_sweep),
+    "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
+}

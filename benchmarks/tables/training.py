@@ -1,0 +1,234 @@
+"""Training: PPO per task against its target, the walker's seeds, whole cold commands on
+each engine, and policies trained on one engine evaluated under both."""
+
+from __future__ import annotations
+
+import statistics
+
+from .common import Cells, Rec, Row, Table, each_row, met, pct, ret, rows, secs
+
+PPO_HEAD = [
+    "id",
+    "seeds",
+    "eval per seed",
+    "env steps / seed",
+    "train / process wall",
+    "where",
+    "target",
+    "met?",
+]
+
+
+def _engine(physics: str) -> str:
+    return "C" if physics == "c" else "MJX"
+
+
+def _walls(r: Row) -> str:
+    return ", ".join(
+        f"{t} / {p} s" for t, p in zip(r["train_wall_s"], r["process_wall_s"], strict=True)
+    )
+
+
+def _where(rec: Rec) -> str:
+    m = rec["machine"]
+    return m["gpu"] or f"{m['cores']} CPU cores"
+
+
+def _floats(xs: list[float]) -> str:
+    return ", ".join(f"{x:.2f}" for x in xs)
+
+
+def ppo_cold_cpu2(recs: list[Rec]) -> Cells:
+    (rec,) = recs
+    cells = [["load average", "engine", "whole command, cold"]]
+    for load in dict.fromkeys(r["load"] for r in rec["rows"]):
+        for engine in ("c", "mjx"):
+            found = rows(rec, load=load, engine=engine)
+            walls = ", ".join(secs(r["process_wall_s"]) for r in found)
+            cells.append([load, _engine(engine), walls])
+    return cells
+
+
+def ppo_cold_cpu16(recs: list[Rec]) -> Cells:
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        engine = "C, 16 threads (the default)" if r["engine"] == "c" else "MJX"
+        return [engine, str(r["devices"]), secs(r["process_wall_s"])]
+
+    head = ["engine", "devices", "whole command, cold (`--no-compile-cache`)"]
+    return each_row(head, rec["rows"], cells)
+
+
+def cross_engine(recs: list[Rec]) -> Cells:
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        end = r["train_eval_return"]
+        return [
+            r["env_id"],
+            _engine(r["trained_physics"]),
+            secs(r["train_wall_s"]),
+            f"{r['env_steps']:,}",
+            f"{end:.{2 if abs(end) < 100 else 1}f}",
+            ret(r["eval_mjx"], r["eval_mjx_std"]),
+            ret(r["eval_c"], r["eval_c_std"]),
+        ]
+
+    head = [
+        "id",
+        "trained on",
+        "train wall",
+        "env steps",
+        "eval at the end of training",
+        "eval under MJX",
+        "eval under C",
+    ]
+    return each_row(head, rec["rows"], cells)
+
+
+def _cartpole_row(rec: Rec) -> list[str]:
+    """CartPole-v0's line: every cold and warm run of the same seed."""
+    cold, warm = rows(rec, cache="cold"), rows(rec, cache="warm")
+
+    def cw(found: list[Row]) -> str:
+        return ", ".join(f"{r['train_wall_s']} / {r['process_wall_s']}" for r in found) + " s"
+
+    cold_ok = sum(r["train_wall_s"] <= 30 for r in cold)
+    return [
+        "CartPole-v0",
+        "0",
+        f"{statistics.median(r['eval'] for r in cold + warm):g} (every run)",
+        "131,072",
+        f"cold {cw(cold)}; warm {cw(warm)}",
+        _where(rec),
+        ">= 475; <= 30 s cold, <= 10 s warm",
+        f"return yes; warm {met(all(r['process_wall_s'] <= 10 for r in warm))}; "
+        f"cold: train wall in {cold_ok} of {len(cold)} rounds, process wall "
+        f"{met(all(r['process_wall_s'] <= 30 for r in cold))}",
+    ]
+
+
+def _seeds_row(rec: Rec, r: Row, evals: str) -> list[str]:
+    """A line of several seeds of one config on one machine."""
+    return [
+        r["env_id"],
+        r["seeds"],
+        evals,
+        f"{r['env_steps']:,}",
+        _walls(r),
+        _where(rec),
+        r["target"] or "",
+        r["met"] or "",
+    ]
+
+
+def _walker_row(rec: Rec) -> list[str]:
+    """HexapodWalk-v0's line: the shipped config's seeds."""
+    shipped = [r for r in rec["rows"] if r["config_diff"] == {}]
+    ok = all(
+        r["speed_m_per_s"] >= 0.5
+        and r["fell_fraction"] <= 0.05
+        and r["targets_reached"] >= 0.9
+        and r["train_seconds"] <= 600
+        for r in shipped
+    )
+    return [
+        "HexapodWalk-v0",
+        ", ".join(str(r["seed"]) for r in shipped),
+        "eval return "
+        + ", ".join(f"{r['eval_mean_return']:.1f}" for r in shipped)
+        + "; greedy speed to a far target "
+        + ", ".join(f"{r['speed_m_per_s']:.3f}" for r in shipped)
+        + " m/s; fell in 10 s "
+        + ", ".join(pct(r["fell_fraction"]) for r in shipped)
+        + "; 3 m targets reached "
+        + ", ".join(pct(r["targets_reached"]) for r in shipped),
+        f"{shipped[0]['env_steps']:,}",
+        ", ".join(f"{r['train_seconds']:.1f} / {r['process_wall_s']} s" for r in shipped),
+        _where(rec),
+        ">= 0.5 m/s on one GPU in 10 min; <= 5% fallen in 10 s; >= 90% of 3 m targets",
+        met(ok) + " on every seed",
+    ]
+
+
+def ppo(recs: list[Rec]) -> Cells:
+    cold_warm, cpu2, oneleg, walker = recs
+    cells = [PPO_HEAD, _cartpole_row(cold_warm)]
+    cells += [_seeds_row(cpu2, r, ", ".join(r["eval_return"])) for r in cpu2["rows"]]
+    (r,) = oneleg["rows"]
+    tip = (
+        f"final tip error (100 greedy episodes): mean {_floats(r['final_tip_error_cm_mean'])}"
+        f" cm (median {_floats(r['final_tip_error_cm_median'])} cm)"
+    )
+    cells.append(_seeds_row(oneleg, r, tip))
+    cells.append(_walker_row(walker))
+    return cells
+
+
+def _walker_label(r: Row) -> tuple[int, str]:
+    """Where a walker run sorts and what config it ran: before, v1 or the shipped one."""
+    diff = r["config_diff"]
+    if not diff:
+        return 2, "**shipped**"
+    if diff.get("agent.randomize") is False:
+        return 0, "before (the earlier config)"
+    return 1, "v1 (upright terms, randomised training, `ent_coef` 0.01, 112 chunks)"
+
+
+def _walker_figures(g: Row) -> str:
+    """Speed, fell within 10 s / over the 50 s episode (far target), 3 m targets reached,
+    and the 3 m group's falls over the episode; the last two falls where the record has
+    them."""
+
+    def ep(key: str) -> str:
+        return pct(g[key]) if key in g else "-"
+
+    return (
+        f"{g['speed_m_per_s']:.3f} / {pct(g['fell_fraction'])} / "
+        f"{ep('fell_fraction_episode')} / {pct(g['targets_reached'])} / "
+        f"{ep('fell_fraction_episode_near')}"
+    )
+
+
+def walker_seeds(recs: list[Rec]) -> Cells:
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        process = f" / {r['process_wall_s']} s" if "process_wall_s" in r else " s"
+        return [
+            f"{_walker_label(r)[1]}, {r['seed']}" + (" (*)" if "recovered" in r else ""),
+            f"{r['train_seconds']:.1f}{process}, {r['env_steps'] / 1e6:.1f}M",
+            _walker_figures(r),
+            _walker_figures(r["randomized"]),
+            _walker_figures(r["mujoco_c"]),
+            _walker_figures(r["mujoco_c_randomized"]),
+        ]
+
+    head = [
+        "config, seed",
+        "train / process wall, env steps",
+        "MJX: speed / fell 10 s / fell 50 s / 3 m reached / 3 m fell 50 s",
+        "randomised",
+        "MuJoCo C",
+        "C, randomised",
+    ]
+    order = sorted(rec["rows"], key=lambda r: (_walker_label(r)[0], r["seed"]))
+    return each_row(head, order, cells)
+
+
+TABLES = {
+    "ppo-cold-cpu2": Table(("ppo_cartpole_cold_cpu2_engines",), ppo_cold_cpu2),
+    "cross-engine": Table(("cross_engine_ppo_cpu2",), cross_engine),
+    "ppo-cold-cpu16": Table(("ppo_cartpole_cold_cpu16_engines",), ppo_cold_cpu16),
+    "ppo": Table(
+        (
+            "ppo_cartpole_cpu2_cold_warm",
+            "ppo_cpu2_cartpoles_reacher",
+            "ppo_cpu2_oneleg",
+            "ppo_walker_seeds_h200",
+        ),
+        ppo,
+    ),
+    "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
+}
