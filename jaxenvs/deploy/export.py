@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from jaxenvs import files
-from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, NumpyPolicy
+from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, Normalizer, NumpyPolicy
 
 FORMATS = ("onnx", "npz")
 #: the ONNX operator set and IR version of exported models (onnxruntime >= 1.14 runs them)
@@ -137,17 +137,15 @@ def policy_of_run(run_dir: str | Path, seed: int | None = None) -> NumpyPolicy:
     cfg = resolved.agent
     layers = _actor_layers(pp.params, tuple(cfg.actor_hidden), run_dir)
     f32 = np.float32
-    mean = std = clip = None
+    normalizer = None
     if cfg.normalize_obs:
         mean = np.asarray(pp.obs_stats.mean, f32)
         std = np.sqrt(np.asarray(pp.obs_stats.var, f32) + f32(1e-8))  # as ppo.normalize
-        clip = f32(cfg.obs_clip)
+        normalizer = Normalizer(mean, std, f32(cfg.obs_clip))
     return NumpyPolicy(
         kernels=tuple(np.asarray(k, f32) for k, _ in layers),
         biases=tuple(np.asarray(b, f32) for _, b in layers),
-        obs_mean=mean,
-        obs_std=std,
-        obs_clip=clip,
+        normalizer=normalizer,
         discrete=bool(env.discrete),
         metadata=run_metadata(resolved, env, seed, cfg.normalize_obs),
     )
@@ -159,10 +157,10 @@ def npz_bytes(policy: NumpyPolicy) -> bytes:
     arrays: dict[str, np.ndarray] = {}
     for i, (k, b) in enumerate(zip(policy.kernels, policy.biases, strict=True)):
         arrays[f"kernel_{i}"], arrays[f"bias_{i}"] = k, b
-    if policy.obs_mean is not None:
-        arrays["obs_mean"] = policy.obs_mean
-        arrays["obs_std"] = np.asarray(policy.obs_std, np.float32)
-        arrays["obs_clip"] = np.asarray(policy.obs_clip, np.float32)
+    norm = policy.normalizer
+    if norm is not None:
+        arrays["obs_mean"], arrays["obs_std"] = norm.mean, norm.std
+        arrays["obs_clip"] = np.asarray(norm.clip, np.float32)
     arrays["metadata"] = np.array(json.dumps(policy.metadata, sort_keys=True))
     buf = io.BytesIO()
     np.savez(buf, **arrays)  # type: ignore[arg-type]
@@ -190,16 +188,17 @@ def onnx_model(policy: NumpyPolicy) -> Any:
         return name
 
     x = "obs"
-    if policy.obs_mean is not None:
+    norm = policy.normalizer
+    if norm is not None:
         nodes += [
-            helper.make_node("Sub", [x, const("obs_mean", policy.obs_mean)], ["obs_centred"]),
-            helper.make_node("Div", ["obs_centred", const("obs_std", policy.obs_std)], ["obs_z"]),
+            helper.make_node("Sub", [x, const("obs_mean", norm.mean)], ["obs_centred"]),
+            helper.make_node("Div", ["obs_centred", const("obs_std", norm.std)], ["obs_z"]),
             helper.make_node(
                 "Clip",
                 [
                     "obs_z",
-                    const("obs_clip_low", -policy.obs_clip),
-                    const("obs_clip_high", policy.obs_clip),
+                    const("obs_clip_low", -norm.clip),
+                    const("obs_clip_high", norm.clip),
                 ],
                 ["obs_normalised"],
             ),

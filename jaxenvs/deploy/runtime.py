@@ -43,21 +43,31 @@ class PolicyFileError(ValueError):
 
 
 @dataclass(frozen=True)
+class Normalizer:
+    """``clip((obs - mean) / std, -clip, clip)``, float32."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    clip: np.float32
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return np.clip((obs - self.mean) / self.std, -self.clip, self.clip)
+
+
+@dataclass(frozen=True)
 class NumpyPolicy:
     """The greedy policy of an exported run, as float32 numpy arrays.
 
     Attributes:
       kernels, biases: the actor MLP's layers, ``kernels[i]`` of shape ``(in, out)``.
-      obs_mean, obs_std, obs_clip: the observation normaliser (``None``: not normalised).
+      normalizer: the observation normaliser (``None``: not normalised).
       discrete: argmax of the logits (else the mean clipped to ``[-1, 1]``).
       metadata: the file's metadata (strings; see the module docstring).
     """
 
     kernels: tuple[np.ndarray, ...]
     biases: tuple[np.ndarray, ...]
-    obs_mean: np.ndarray | None
-    obs_std: np.ndarray | None
-    obs_clip: np.float32 | None
+    normalizer: Normalizer | None
     discrete: bool
     metadata: dict[str, str]
 
@@ -93,8 +103,8 @@ class NumpyPolicy:
         """The actor's last layer for ``obs`` of shape ``(N, obs_size)``: logits for a
         discrete task, the Gaussian mean before clipping for a continuous one."""
         x = np.asarray(obs, np.float32)
-        if self.obs_mean is not None:
-            x = np.clip((x - self.obs_mean) / self.obs_std, -self.obs_clip, self.obs_clip)
+        if self.normalizer is not None:
+            x = self.normalizer(x)
         last = len(self.kernels) - 1
         for i, (kernel, bias) in enumerate(zip(self.kernels, self.biases, strict=True)):
             x = x @ kernel + bias
@@ -163,7 +173,7 @@ def _from_arrays(arrays: dict[str, np.ndarray], meta: dict[str, str], path: Path
     obs_size = kernels[0].shape[0]
     if meta.get("observation_size") != str(obs_size) or meta.get("action_size") != str(width):
         raise PolicyFileError(f"{path}: corrupt policy (sizes differ from its metadata)")
-    mean = std = clip = None
+    normalizer = None
     if "obs_mean" in arrays:
         mean, std = arrays["obs_mean"], arrays["obs_std"]
         clip = np.float32(arrays["obs_clip"])
@@ -171,7 +181,8 @@ def _from_arrays(arrays: dict[str, np.ndarray], meta: dict[str, str], path: Path
             raise PolicyFileError(f"{path}: corrupt policy (normaliser shapes)")
         if not (np.all(std > 0) and clip > 0):
             raise PolicyFileError(f"{path}: corrupt policy (normaliser values)")
-    return NumpyPolicy(kernels, biases, mean, std, clip, meta["discrete"] == "1", meta)
+        normalizer = Normalizer(mean, std, clip)
+    return NumpyPolicy(kernels, biases, normalizer, meta["discrete"] == "1", meta)
 
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "NumpyPolicy", "PolicyFileError"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "Normalizer", "NumpyPolicy", "PolicyFileError"]
