@@ -73,6 +73,8 @@ def check_run(run: Path, num_obs: int, physics: str | None) -> list[dict[str, An
     actions = {"onnx": parity.onnx_actions(paths["onnx"], obs), "npz": numpy_policy(obs)}
     resolved = runner.load_run_config(run)
     summary = json.loads((run / runner.SUMMARY_FILE).read_text())
+    steps = summary["env_steps"] // resolved.train.num_seeds
+    shipped = runner.resolve_config(meta["env_id"], "ppo").agent.total_steps
     rows = []
     for fmt, act in actions.items():
         row = parity.compare(reference, act, policy.env.discrete, TOL)
@@ -81,7 +83,8 @@ def check_run(run: Path, num_obs: int, physics: str | None) -> list[dict[str, An
                 "env_id": meta["env_id"],
                 "run": run.name,
                 "format": fmt,
-                "env_steps_trained": summary["env_steps"] // resolved.train.num_seeds,
+                "training": "shipped length" if steps >= shipped else "short",
+                "env_steps_trained": steps,
                 "eval_mean_return": summary["eval_mean_return"],
                 "actor_hidden": list(resolved.agent.actor_hidden),
                 "normalize_obs": resolved.agent.normalize_obs,
@@ -107,6 +110,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--obs", type=int, default=10_240, help="rollout observations per run")
     parser.add_argument("--physics", help="the rollouts' engine (default: each run's)")
     parser.add_argument("--json", default=None, help=results_io.HELP)
+    parser.add_argument("--note", default="", help="added to the result file's notes")
     parser.add_argument(
         "--machine", default="the shared 2-core development machine", help="its description"
     )
@@ -127,6 +131,7 @@ def main(argv: list[str] | None = None) -> None:
             else ""
         )
         + (f"Not checked: {', '.join(missing)}." if missing else "Every shipped PPO config.")
+        + (f" {args.note}" if args.note else "")
     )
     if args.json:
         title = "Exported PPO policies (ONNX, npz) against the JAX policy on rollouts"

@@ -808,6 +808,29 @@ def soak_h100(recs: list[Rec]) -> Cells:
     return cells
 
 
+def export_parity(recs: list[Rec]) -> Cells:
+    cells = [
+        ["id", "training", "actor, obs normalised", "rollout obs", "max abs diff ONNX / npz"]
+        + ["differing actions ONNX / npz", "passed"]
+    ]
+    for rec in recs:
+        for env_id, training in dict.fromkeys((r["env_id"], r["training"]) for r in rec["rows"]):
+            o, n = (one(rec, env_id=env_id, training=training, format=f) for f in ("onnx", "npz"))
+            actor = "x".join(map(str, o["actor_hidden"]))
+            cells.append(
+                [
+                    env_id,
+                    f"{training}, {o['env_steps_trained']:,} steps",
+                    f"{actor}, {'yes' if o['normalize_obs'] else 'no'}",
+                    f"{o['observations']:,}",
+                    f"{o['max_abs_diff']:.1e} / {n['max_abs_diff']:.1e}",
+                    f"{o['mismatches']} / {n['mismatches']}",
+                    met(o["passed"] and n["passed"]),
+                ]
+            )
+    return cells
+
+
 class Table(NamedTuple):
     files: tuple[str, ...]
     build: Callable[[list[Rec]], Cells]
@@ -878,6 +901,7 @@ TABLES: dict[str, Table] = {
     "gpu-h200-modes": Table(("throughput_h200_modes",), throughput_h200),
     "walker-solver": Table(("walker_solver_variants_h100",), walker_solver),
     "soak-h100": Table(("soak_h100_all_tasks",), soak_h100),
+    "export-parity": Table(("export_parity_cpu2",), export_parity),
 }
 
 
