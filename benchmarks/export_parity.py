@@ -136,8 +136,13 @@ def main(argv: list[str] | None = None) -> None:
     if args.json:
         title = "Exported PPO policies (ONNX, npz) against the JAX policy on rollouts"
         import jax  # noqa: F401  (loaded: machine() reports the device)
+        import onnx
+        import onnxruntime
 
-        rec = results_io.record(args.json, title, rows, description=args.machine, notes=notes)
+        extra = {"onnx": onnx.__version__, "onnxruntime": onnxruntime.__version__}
+        rec = results_io.record(
+            args.json, title, rows, description=args.machine, notes=notes, extra=extra
+        )
         results_io.write(args.json, rec)
     print(notes)
 
