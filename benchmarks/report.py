@@ -901,7 +901,7 @@ TABLES: dict[str, Table] = {
     "gpu-h200-modes": Table(("throughput_h200_modes",), throughput_h200),
     "walker-solver": Table(("walker_solver_variants_h100",), walker_solver),
     "soak-h100": Table(("soak_h100_all_tasks",), soak_h100),
-    "export-parity": Table(("export_parity_cpu2",), export_parity),
+    "export-parity": Table(("export_parity_cpu2", "export_parity_h200_walker"), export_parity),
 }
 
 
