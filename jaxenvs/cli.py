@@ -1,4 +1,4 @@
-"""The ``jaxenvs`` command line: list, train, eval, compare, render, bench, view.
+"""The ``jaxenvs`` command line: list, train, eval, compare, render, bench, view, export.
 
 Each subcommand lives in its own module under ``jaxenvs.commands`` exposing
 ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``. Errors the user
@@ -13,7 +13,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-COMMANDS = ("list", "train", "eval", "compare", "render", "bench", "view")
+COMMANDS = ("list", "train", "eval", "compare", "render", "bench", "view", "export")
 
 
 def _module(name: str):  # type: ignore[no-untyped-def]

@@ -8,10 +8,32 @@ families share: the cell formats, the row look-ups and :class:`~.common.Table`.
 
 from __future__ import annotations
 
-from . import auto, engines, facade, main_command, scaling, soak, tabular, throughput, training
+from . import (
+    auto,
+    engines,
+    export,
+    facade,
+    main_command,
+    scaling,
+    soak,
+    tabular,
+    throughput,
+    training,
+)
 from .common import ReportError, Table
 
-FAMILIES = (engines, training, auto, main_command, tabular, scaling, facade, throughput, soak)
+FAMILIES = (
+    engines,
+    training,
+    auto,
+    main_command,
+    tabular,
+    scaling,
+    facade,
+    throughput,
+    soak,
+    export,
+)
 
 
 def _every_table() -> dict[str, Table]:
