@@ -65,48 +65,11 @@ from jaxenvs.config import require
 from jaxenvs.devices import ENV_AXIS as ENV_AXIS
 from jaxenvs.devices import batch_devices as batch_devices
 from jaxenvs.devices import divisible_devices as divisible_devices
+from jaxenvs.physics import PHYSICS_CHOICES, resolve_engine
 from jaxenvs.sim import Sim
 
 PyTree = Any
 Params = Any
-
-#: values of ``TaskConfig.physics``
-PHYSICS_CHOICES = ("auto", "mjx", "c")
-
-
-def cpu_auto(task: Any, num_envs: int | None, backend: str | None = None) -> str | None:
-    """What ``physics="auto"`` picks for a batch of ``num_envs`` of ``task`` (an :class:`Env`
-    subclass), or ``None`` where the task's single-env choice stands (not a CPU, no batch,
-    no measured cross-over).
-
-    On a CPU a task steps under ``cpu_physics`` up to ``cpu_mjx_from`` envs and under MJX
-    from there on: the batch size where MJX's steady-state throughput passed the C
-    engine's in ``benchmarks/engines_sweep.sh`` (RESULTS.md, "physics='auto'").
-    """
-    backend = backend or jax.default_backend()
-    threshold = getattr(task, "cpu_mjx_from", None)
-    if backend != "cpu" or num_envs is None or threshold is None:
-        return None
-    return "mjx" if num_envs >= threshold else None
-
-
-def resolve_physics(requested: str, cpu_default: str, backend: str | None = None) -> str:
-    """The engine ``requested`` means on ``backend`` (default: JAX's default backend).
-
-    ``"auto"`` is MJX on an accelerator and ``cpu_default`` on a CPU; ``"c"`` on an
-    accelerator raises ``ValueError`` (MuJoCo's C engine runs on the CPU only).
-    """
-    if requested not in PHYSICS_CHOICES:
-        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {requested!r}")
-    backend = backend or jax.default_backend()
-    if requested == "auto":
-        return cpu_default if backend == "cpu" else "mjx"
-    if requested == "c" and backend != "cpu":
-        raise ValueError(
-            f"physics='c' steps MuJoCo's C engine on the CPU, but JAX's default backend is "
-            f"{backend!r}: use physics='mjx' or 'auto' there, or run with JAX_PLATFORMS=cpu"
-        )
-    return requested
 
 
 STANDARD_INFO_KEYS = (
@@ -168,8 +131,9 @@ class TaskConfig:
         terminated with ``info["diverged"]``.
       physics: the engine that steps the physics: ``"mjx"`` (MJX, any JAX backend),
         ``"c"`` (MuJoCo's C engine, CPU only, :mod:`jaxenvs.cengine`) or ``"auto"`` (MJX on
-        an accelerator; on a CPU the task's measured faster engine, ``Env.cpu_physics``).
-        A built env's config holds the resolved engine.
+        an accelerator; on a CPU the task's measured faster engine at the batch size,
+        :func:`jaxenvs.physics.resolve_engine`). A built env's config holds the resolved
+        engine.
     """
 
     episode_length: int = 1000
@@ -218,7 +182,7 @@ class Env(abc.ABC, Generic[ConfigT]):
     cpu_physics: str = "mjx"
 
     #: on a CPU, ``physics="auto"`` picks MJX for batches of at least this many envs
-    #: (:func:`cpu_auto`); ``None``: ``cpu_physics`` at every batch size.
+    #: (:func:`jaxenvs.physics.resolve_engine`); ``None``: ``cpu_physics`` at every size.
     cpu_mjx_from: int | None = None
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -239,7 +203,7 @@ class Env(abc.ABC, Generic[ConfigT]):
 
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         requested = getattr(config, "physics", "auto")
-        physics = resolve_physics(requested, self.cpu_physics)
+        physics = resolve_engine(type(self), requested)
         if requested != physics:
             config = dataclasses.replace(config, physics=physics)
         self.config = config
