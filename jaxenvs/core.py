@@ -48,7 +48,6 @@ from __future__ import annotations
 import abc
 import dataclasses
 import inspect
-from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
 import gymnasium
@@ -56,15 +55,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
+from jaxenvs import placement
 from jaxenvs.config import require
-
-# re-exported for backward compatibility: device counting lives in jaxenvs.devices
-from jaxenvs.devices import ENV_AXIS as ENV_AXIS
-from jaxenvs.devices import batch_devices as batch_devices
-from jaxenvs.devices import divisible_devices as divisible_devices
 from jaxenvs.physics import PHYSICS_CHOICES, resolve_engine
 from jaxenvs.sim import Sim
 
@@ -426,11 +420,11 @@ class BatchedEnv:
     the transition that ended it. With ``randomize=True`` each env draws its own params
     from ``env.sample_params`` at every reset (domain randomisation).
 
-    **Devices.** The batch is spread over the local devices (:func:`batch_devices`;
-    ``devices=1`` keeps it on one): ``reset`` and ``step`` keep every state leaf's env axis
-    split over a 1-D mesh with axis :data:`ENV_AXIS`, so each device steps its slice of
-    envs. Every env's arithmetic is the same as on one device, so trajectories are
-    bit-identical.
+    **Devices.** The batch is spread over the local devices that
+    :func:`jaxenvs.placement.batch_devices` picks (``devices=1`` keeps it on one):
+    ``reset`` and ``step`` keep every state leaf's env axis split over a 1-D mesh
+    (:func:`jaxenvs.placement.spread`), so each device steps its slice of envs. Every
+    env's arithmetic is the same as on one device, so trajectories are bit-identical.
     """
 
     def __init__(
@@ -441,9 +435,9 @@ class BatchedEnv:
         self.env = env
         self.num_envs = int(num_envs)
         self.randomize = bool(randomize)
-        n = batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
+        n = placement.batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
         #: the mesh the batch is spread over; ``None`` on one device
-        self.mesh = None if n == 1 else Mesh(np.array(jax.local_devices()[:n]), (ENV_AXIS,))
+        self.mesh = placement.local_mesh(n)
 
     @property
     def devices(self) -> int:
@@ -451,36 +445,11 @@ class BatchedEnv:
         return 1 if self.mesh is None else self.mesh.size
 
     def on_one_device(self) -> BatchedEnv:
-        """The same batch unspread (for callers that place it themselves, e.g. with
-        :func:`jaxenvs.sharding.shard_jit`)."""
+        """The same batch unspread, for callers that place it themselves (e.g. with
+        :func:`jaxenvs.sharding.shard_jit`); see :mod:`jaxenvs.placement`."""
         if self.mesh is None:
             return self
         return BatchedEnv(self.env, self.num_envs, self.randomize, devices=1)
-
-    def _spread(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(*args)`` with the first two arguments' and the result's leading (env) axis
-        split over the mesh; the compiler partitions the program (and adds the one
-        cross-device reduction, the auto-reset's ``any(done)``).
-
-        One program over the mesh, not a ``shard_map``: every device takes the same
-        auto-reset decision. (Under the C engine XLA does not partition the engine's
-        call: each device steps the whole batch. A ``shard_map`` that gives each device its
-        slice crashed XLA's CPU compiler in jax 0.11.2 with 8 host devices, so a C batch
-        stays on one device unless asked otherwise; see :func:`jaxenvs.devices.batch_devices`.)
-        """
-        if self.mesh is None:
-            return fn(*args)
-        split = NamedSharding(self.mesh, PartitionSpec(ENV_AXIS))
-
-        def place(tree: Any) -> Any:
-            return jax.lax.with_sharding_constraint(tree, jax.tree.map(lambda _: split, tree))
-
-        def run(first: Any, second: Any, rest: Any) -> Any:
-            return place(fn(place(first), place(second), rest))
-
-        # jit: inlined when the caller is traced; called eagerly, the task's constants
-        # (committed to one device) become part of one program over the mesh
-        return jax.jit(run)(*args)
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")
@@ -508,7 +477,9 @@ class BatchedEnv:
         keys = jax.random.split(key, self.num_envs)
         if self.mesh is None:
             return self._reset_batch(keys, params)
-        return self._spread(lambda k, _, p: self._reset_batch(k, p), keys, (), params)
+        return placement.spread(
+            self.mesh, lambda k, _, p: self._reset_batch(k, p), keys, (), params
+        )
 
     def step(self, state: State, action: jax.Array, params: Params = None) -> State:
         """Step every env, then reset the finished ones (fresh random starts)."""
@@ -519,7 +490,7 @@ class BatchedEnv:
                 f"batched {type(self.env).__name__}: expected actions of shape {expected}, "
                 f"got {action.shape}"
             )
-        return self._spread(self._step_batch, state, action, params)
+        return placement.spread(self.mesh, self._step_batch, state, action, params)
 
     def _step_batch(self, state: State, action: jax.Array, params: Params) -> State:
         if state.params is not None:
