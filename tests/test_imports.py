@@ -142,3 +142,9 @@ def test_env_layer_imports_no_agent():
     for module in layer:
         agents = sorted(m for m in reachable(graph, module) if m.startswith("jaxenvs.agents"))
         assert not agents, f"{module} imports {', '.join(agents)}"
+
+
+def test_private_jax_only_in_its_guarded_module():
+    """JAX's internals are read in one module, which checks the JAX release first."""
+    readers = sorted(name for name, path in _modules().items() if "jax._src" in path.read_text())
+    assert readers == ["jaxenvs._jax_cache_hook"]
