@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import inspect
 from typing import Any, Generic, TypeVar
 
 import gymnasium
@@ -149,14 +148,6 @@ class TaskConfig:
 
 ConfigT = TypeVar("ConfigT", bound=TaskConfig)
 
-#: the arguments (after ``self``) of the task hooks whose signature changed when they
-#: gained keys; :meth:`Env.__init_subclass__` checks overrides against them.
-_HOOK_ARITY = {
-    "_act": ("key", "data", "extras", "action", "params"),
-    "_observe": ("key", "data", "extras", "params"),
-    "_terminated": ("data", "extras", "params"),
-}
-
 
 class Env(abc.ABC, Generic[ConfigT]):
     """Base class of every jaxenvs task. Holds no mutable state after construction."""
@@ -178,22 +169,6 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: on a CPU, ``physics="auto"`` picks MJX for batches of at least this many envs
     #: (:func:`jaxenvs.physics.resolve_engine`); ``None``: ``cpu_physics`` at every size.
     cpu_mjx_from: int | None = None
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        """Refuse hooks written to the old signatures (no key) with a message saying how."""
-        super().__init_subclass__(**kwargs)
-        for name, want in _HOOK_ARITY.items():
-            hook = cls.__dict__.get(name)
-            if hook is None or getattr(hook, "__isabstractmethod__", False):
-                continue
-            params = list(inspect.signature(hook).parameters.values())[1:]  # after self
-            if any(p.kind is p.VAR_POSITIONAL for p in params):
-                continue
-            if len([p for p in params if p.default is p.empty]) != len(want):
-                raise TypeError(
-                    f"{cls.__name__}.{name} must take ({', '.join(want)}); hooks receive "
-                    "their own random key first (see jaxenvs.core)"
-                )
 
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         requested = getattr(config, "physics", "auto")

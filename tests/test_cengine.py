@@ -19,8 +19,9 @@ import pytest
 
 import jaxenvs
 from jaxenvs import cengine, machine
+from jaxenvs.actions import random_actions
 from jaxenvs.physics import resolve_engine
-from jaxenvs.testing import check_engine_parity, check_task, random_actions
+from jaxenvs.testing import check_engine_parity, check_task
 
 BUILTIN = [
     "CartPole-v0",

@@ -26,7 +26,7 @@ _SCRIPT = textwrap.dedent(
     import json, sys, warnings
     import jax, jax.numpy as jnp, numpy as np
     import jaxenvs
-    from jaxenvs.testing import random_actions
+    from jaxenvs.actions import random_actions
 
     out = sys.argv[1]
     res, arrays = {"devices": jax.local_device_count()}, {}

@@ -186,21 +186,10 @@ def resolve_config(
     return ResolvedConfig(env_id, task_config, algo, agent, run)
 
 
-#: shipped configs whose names predate the ``<algo>_<id>.yaml`` rule (the course's names)
-SHIPPED_CONFIGS = {
-    ("qlearning", "CartPole-v0"): "cartpole_qlearn.yaml",
-    ("sarsa", "CartPole-v0"): "cartpole_sarsa.yaml",
-    ("qlearning", "CartpoleStayUp-v0"): "cartpole_stayup_qlearn.yaml",
-    ("sarsa", "CartpoleStayUp-v0"): "cartpole_stayup_sarsa.yaml",
-}
-
-
 def shipped_config(algo: str, env_id: str) -> Path | None:
-    """The tuned config shipped for ``algo`` on ``env_id`` (``configs/<algo>_<id>.yaml``
-    or the entry in :data:`SHIPPED_CONFIGS`), used when no ``--config`` is given; ``None``
-    when there is none."""
-    name = SHIPPED_CONFIGS.get((algo, env_id), f"{algo}_{env_id}.yaml")
-    path = Path(__file__).resolve().parent.parent / "configs" / name
+    """The tuned config shipped for ``algo`` on ``env_id``, ``configs/<algo>_<id>.yaml``,
+    used when no ``--config`` is given; ``None`` when there is none."""
+    path = Path(__file__).resolve().parent.parent / "configs" / f"{algo}_{env_id}.yaml"
     return path if path.is_file() else None
 
 
