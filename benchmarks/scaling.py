@@ -33,6 +33,7 @@ import results_io
 import jaxenvs
 from jaxenvs import sharding
 from jaxenvs.agents import ppo
+from jaxenvs.agents.placement import shard_trainer_fns
 from jaxenvs.core import BatchedEnv, Env
 
 
@@ -83,7 +84,7 @@ def ppo_wall_time(
     )
     trainer = ppo.make_trainer(env, config)
     mesh = sharding.make_mesh(devices)
-    init, chunk = sharding.shard_trainer_fns(trainer, mesh, num_envs)
+    init, chunk = shard_trainer_fns(trainer, mesh, num_envs)
     t0 = time.perf_counter()
     state = jax.block_until_ready(init(jax.random.key(0)))
     state, metrics = jax.block_until_ready(chunk(state))

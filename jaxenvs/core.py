@@ -47,8 +47,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import inspect
-from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
 import gymnasium
@@ -56,57 +54,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import mjx
 
+from jaxenvs import placement
 from jaxenvs.config import require
-
-# re-exported for backward compatibility: device counting lives in jaxenvs.devices
-from jaxenvs.devices import ENV_AXIS as ENV_AXIS
-from jaxenvs.devices import batch_devices as batch_devices
-from jaxenvs.devices import divisible_devices as divisible_devices
+from jaxenvs.physics import PHYSICS_CHOICES, resolve_engine
 from jaxenvs.sim import Sim
 
 PyTree = Any
 Params = Any
-
-#: values of ``TaskConfig.physics``
-PHYSICS_CHOICES = ("auto", "mjx", "c")
-
-
-def cpu_auto(task: Any, num_envs: int | None, backend: str | None = None) -> str | None:
-    """What ``physics="auto"`` picks for a batch of ``num_envs`` of ``task`` (an :class:`Env`
-    subclass), or ``None`` where the task's single-env choice stands (not a CPU, no batch,
-    no measured cross-over).
-
-    On a CPU a task steps under ``cpu_physics`` up to ``cpu_mjx_from`` envs and under MJX
-    from there on: the batch size where MJX's steady-state throughput passed the C
-    engine's in ``benchmarks/engines_sweep.sh`` (RESULTS.md, "physics='auto'").
-    """
-    backend = backend or jax.default_backend()
-    threshold = getattr(task, "cpu_mjx_from", None)
-    if backend != "cpu" or num_envs is None or threshold is None:
-        return None
-    return "mjx" if num_envs >= threshold else None
-
-
-def resolve_physics(requested: str, cpu_default: str, backend: str | None = None) -> str:
-    """The engine ``requested`` means on ``backend`` (default: JAX's default backend).
-
-    ``"auto"`` is MJX on an accelerator and ``cpu_default`` on a CPU; ``"c"`` on an
-    accelerator raises ``ValueError`` (MuJoCo's C engine runs on the CPU only).
-    """
-    if requested not in PHYSICS_CHOICES:
-        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {requested!r}")
-    backend = backend or jax.default_backend()
-    if requested == "auto":
-        return cpu_default if backend == "cpu" else "mjx"
-    if requested == "c" and backend != "cpu":
-        raise ValueError(
-            f"physics='c' steps MuJoCo's C engine on the CPU, but JAX's default backend is "
-            f"{backend!r}: use physics='mjx' or 'auto' there, or run with JAX_PLATFORMS=cpu"
-        )
-    return requested
 
 
 STANDARD_INFO_KEYS = (
@@ -168,8 +124,9 @@ class TaskConfig:
         terminated with ``info["diverged"]``.
       physics: the engine that steps the physics: ``"mjx"`` (MJX, any JAX backend),
         ``"c"`` (MuJoCo's C engine, CPU only, :mod:`jaxenvs.cengine`) or ``"auto"`` (MJX on
-        an accelerator; on a CPU the task's measured faster engine, ``Env.cpu_physics``).
-        A built env's config holds the resolved engine.
+        an accelerator; on a CPU the task's measured faster engine at the batch size,
+        :func:`jaxenvs.physics.resolve_engine`). A built env's config holds the resolved
+        engine.
     """
 
     episode_length: int = 1000
@@ -191,14 +148,6 @@ class TaskConfig:
 
 ConfigT = TypeVar("ConfigT", bound=TaskConfig)
 
-#: the arguments (after ``self``) of the task hooks whose signature changed when they
-#: gained keys; :meth:`Env.__init_subclass__` checks overrides against them.
-_HOOK_ARITY = {
-    "_act": ("key", "data", "extras", "action", "params"),
-    "_observe": ("key", "data", "extras", "params"),
-    "_terminated": ("data", "extras", "params"),
-}
-
 
 class Env(abc.ABC, Generic[ConfigT]):
     """Base class of every jaxenvs task. Holds no mutable state after construction."""
@@ -218,28 +167,12 @@ class Env(abc.ABC, Generic[ConfigT]):
     cpu_physics: str = "mjx"
 
     #: on a CPU, ``physics="auto"`` picks MJX for batches of at least this many envs
-    #: (:func:`cpu_auto`); ``None``: ``cpu_physics`` at every batch size.
+    #: (:func:`jaxenvs.physics.resolve_engine`); ``None``: ``cpu_physics`` at every size.
     cpu_mjx_from: int | None = None
-
-    def __init_subclass__(cls, **kwargs: Any) -> None:
-        """Refuse hooks written to the old signatures (no key) with a message saying how."""
-        super().__init_subclass__(**kwargs)
-        for name, want in _HOOK_ARITY.items():
-            hook = cls.__dict__.get(name)
-            if hook is None or getattr(hook, "__isabstractmethod__", False):
-                continue
-            params = list(inspect.signature(hook).parameters.values())[1:]  # after self
-            if any(p.kind is p.VAR_POSITIONAL for p in params):
-                continue
-            if len([p for p in params if p.default is p.empty]) != len(want):
-                raise TypeError(
-                    f"{cls.__name__}.{name} must take ({', '.join(want)}); hooks receive "
-                    "their own random key first (see jaxenvs.core)"
-                )
 
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         requested = getattr(config, "physics", "auto")
-        physics = resolve_physics(requested, self.cpu_physics)
+        physics = resolve_engine(type(self), requested)
         if requested != physics:
             config = dataclasses.replace(config, physics=physics)
         self.config = config
@@ -462,11 +395,11 @@ class BatchedEnv:
     the transition that ended it. With ``randomize=True`` each env draws its own params
     from ``env.sample_params`` at every reset (domain randomisation).
 
-    **Devices.** The batch is spread over the local devices (:func:`batch_devices`;
-    ``devices=1`` keeps it on one): ``reset`` and ``step`` keep every state leaf's env axis
-    split over a 1-D mesh with axis :data:`ENV_AXIS`, so each device steps its slice of
-    envs. Every env's arithmetic is the same as on one device, so trajectories are
-    bit-identical.
+    **Devices.** The batch is spread over the local devices that
+    :func:`jaxenvs.placement.batch_devices` picks (``devices=1`` keeps it on one):
+    ``reset`` and ``step`` keep every state leaf's env axis split over a 1-D mesh
+    (:func:`jaxenvs.placement.spread`), so each device steps its slice of envs. Every
+    env's arithmetic is the same as on one device, so trajectories are bit-identical.
     """
 
     def __init__(
@@ -477,9 +410,9 @@ class BatchedEnv:
         self.env = env
         self.num_envs = int(num_envs)
         self.randomize = bool(randomize)
-        n = batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
+        n = placement.batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
         #: the mesh the batch is spread over; ``None`` on one device
-        self.mesh = None if n == 1 else Mesh(np.array(jax.local_devices()[:n]), (ENV_AXIS,))
+        self.mesh = placement.local_mesh(n)
 
     @property
     def devices(self) -> int:
@@ -487,36 +420,11 @@ class BatchedEnv:
         return 1 if self.mesh is None else self.mesh.size
 
     def on_one_device(self) -> BatchedEnv:
-        """The same batch unspread (for callers that place it themselves, e.g. with
-        :func:`jaxenvs.sharding.shard_jit`)."""
+        """The same batch unspread, for callers that place it themselves (e.g. with
+        :func:`jaxenvs.sharding.shard_jit`); see :mod:`jaxenvs.placement`."""
         if self.mesh is None:
             return self
         return BatchedEnv(self.env, self.num_envs, self.randomize, devices=1)
-
-    def _spread(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(*args)`` with the first two arguments' and the result's leading (env) axis
-        split over the mesh; the compiler partitions the program (and adds the one
-        cross-device reduction, the auto-reset's ``any(done)``).
-
-        One program over the mesh, not a ``shard_map``: every device takes the same
-        auto-reset decision. (Under the C engine XLA does not partition the engine's
-        call: each device steps the whole batch. A ``shard_map`` that gives each device its
-        slice crashed XLA's CPU compiler in jax 0.11.2 with 8 host devices, so a C batch
-        stays on one device unless asked otherwise; see :func:`jaxenvs.devices.batch_devices`.)
-        """
-        if self.mesh is None:
-            return fn(*args)
-        split = NamedSharding(self.mesh, PartitionSpec(ENV_AXIS))
-
-        def place(tree: Any) -> Any:
-            return jax.lax.with_sharding_constraint(tree, jax.tree.map(lambda _: split, tree))
-
-        def run(first: Any, second: Any, rest: Any) -> Any:
-            return place(fn(place(first), place(second), rest))
-
-        # jit: inlined when the caller is traced; called eagerly, the task's constants
-        # (committed to one device) become part of one program over the mesh
-        return jax.jit(run)(*args)
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")
@@ -544,7 +452,9 @@ class BatchedEnv:
         keys = jax.random.split(key, self.num_envs)
         if self.mesh is None:
             return self._reset_batch(keys, params)
-        return self._spread(lambda k, _, p: self._reset_batch(k, p), keys, (), params)
+        return placement.spread(
+            self.mesh, lambda k, _, p: self._reset_batch(k, p), keys, (), params
+        )
 
     def step(self, state: State, action: jax.Array, params: Params = None) -> State:
         """Step every env, then reset the finished ones (fresh random starts)."""
@@ -555,7 +465,7 @@ class BatchedEnv:
                 f"batched {type(self.env).__name__}: expected actions of shape {expected}, "
                 f"got {action.shape}"
             )
-        return self._spread(self._step_batch, state, action, params)
+        return placement.spread(self.mesh, self._step_batch, state, action, params)
 
     def _step_batch(self, state: State, action: jax.Array, params: Params) -> State:
         if state.params is not None:

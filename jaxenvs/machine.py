@@ -5,7 +5,7 @@ Two mechanisms use the CPU's cores, and both read this module:
 * **MJX on a CPU** runs one XLA program per host device, and one XLA CPU device keeps
   about two cores busy whatever the machine has (benchmarks/RESULTS.md). jaxenvs therefore
   asks XLA for ``cores // 2`` host devices (at least 1) and spreads env batches over them
-  (:mod:`jaxenvs.sharding`). On a 2-core machine that is one device, as before.
+  (:mod:`jaxenvs.placement`). On a 2-core machine that is one device.
 * **MuJoCo's C engine** (``physics="c"``, :mod:`jaxenvs.cengine`) steps a batch with a pool
   of ``cores`` threads.
 
@@ -24,10 +24,11 @@ A choice the user already made wins: ``XLA_FLAGS=--xla_force_host_platform_devic
 from __future__ import annotations
 
 import os
-import warnings
 from typing import Any
 
 import jax
+
+from jaxenvs import placement
 
 _cores: int | None = None
 
@@ -50,30 +51,6 @@ def cpu_threads() -> int:
     return cores()
 
 
-def host_devices_for(n_cores: int) -> int:
-    """XLA host devices for ``n_cores`` cores: one per two cores, at least one."""
-    return max(1, n_cores // 2)
-
-
-def backends_started() -> bool:
-    """True once JAX has initialised its backends (device counts are then fixed)."""
-    from jax._src import xla_bridge
-
-    started = getattr(xla_bridge, "backends_are_initialized", None)
-    if started is not None:
-        return bool(started())
-    return bool(getattr(xla_bridge, "_backends", {}))
-
-
-def user_chose_devices() -> bool:
-    """True if the user already set the CPU device count (flag, variable or option)."""
-    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
-        return True
-    if os.environ.get("JAX_NUM_CPU_DEVICES"):
-        return True
-    return int(getattr(jax.config, "jax_num_cpu_devices", -1) or -1) > 0
-
-
 def use_cores(n: int | None = None, *, strict: bool = True) -> int:
     """Use ``n`` CPU cores (default: all usable) for MJX's host devices and C's threads.
 
@@ -86,22 +63,7 @@ def use_cores(n: int | None = None, *, strict: bool = True) -> int:
     if n is not None and (isinstance(n, bool) or not isinstance(n, int) or n < 1):
         raise ValueError(f"cores must be a positive integer, got {n!r}")
     _cores = n
-    wanted = host_devices_for(cores())
-    if user_chose_devices():
-        return cores()
-    if backends_started():
-        have = jax.local_device_count("cpu") if _has_cpu() else 1
-        if have != wanted:
-            msg = (
-                f"jaxenvs.machine.use_cores came after JAX started: the CPU keeps {have} "
-                f"device(s) instead of {wanted}; call it before the first JAX operation, or "
-                f"set XLA_FLAGS=--xla_force_host_platform_device_count={wanted}"
-            )
-            if strict:
-                raise RuntimeError(msg)
-            warnings.warn(msg, stacklevel=2)
-        return cores()
-    jax.config.update("jax_num_cpu_devices", wanted)
+    placement.set_host_devices(placement.host_devices_for(cores()), strict=strict)
     return cores()
 
 
@@ -110,11 +72,3 @@ def describe(env: Any) -> str:
     if getattr(env, "physics", "mjx") == "c":
         return f"physics: c (MuJoCo C on the CPU, {env.sim.engine.threads} threads)"
     return f"physics: mjx ({jax.default_backend()}, {jax.local_device_count()} device(s))"
-
-
-def _has_cpu() -> bool:
-    try:
-        jax.devices("cpu")
-    except RuntimeError:
-        return False
-    return True

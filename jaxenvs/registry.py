@@ -22,7 +22,8 @@ from collections.abc import Callable
 from typing import Any
 
 from jaxenvs.config import ConfigError, apply_overrides
-from jaxenvs.core import BatchedEnv, Env, TaskConfig, cpu_auto
+from jaxenvs.core import BatchedEnv, Env, TaskConfig
+from jaxenvs.physics import with_engine
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,15 +170,12 @@ def make(
         :func:`jaxenvs.core.batch_devices`).
       **overrides: any field of the task's config (``episode_length=500``,
         ``physics="c"``, ...); an unknown key raises :class:`ConfigError` listing the
-        valid ones.
+        valid ones. ``physics`` is resolved for this batch size
+        (:func:`jaxenvs.physics.resolve_engine`).
     """
-    config = make_config(env_id, overrides)
     factory = spec(env_id).factory
-    if getattr(config, "physics", None) == "auto" and isinstance(num_envs, int):
-        picked = cpu_auto(factory, num_envs)
-        if picked is not None:
-            config = dataclasses.replace(config, physics=picked)
-    env = factory(config)
+    batch = num_envs if isinstance(num_envs, int) else None
+    env = factory(with_engine(factory, make_config(env_id, overrides), batch))
     if num_envs is None:
         if randomize or devices is not None:
             raise ConfigError("randomize and devices need num_envs (a batched env)")

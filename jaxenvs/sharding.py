@@ -1,4 +1,4 @@
-"""Spread a batch of envs (and the agents that train on it) over several devices and hosts.
+"""Spread a batch of envs over several devices and hosts, laid out by the caller.
 
 One mechanism, JAX's own SPMD partitioning: a 1-D :class:`jax.sharding.Mesh` whose axis
 ``"envs"`` spans the devices, the leading env-batch axis of every env-state leaf sharded
@@ -12,6 +12,9 @@ processes, sockets or queues of our own.
     validate_batch(4096, mesh.size)              # raises if 4096 does not split evenly
     rollout = make_sharded_rollout(benv, mesh, steps=100)
     state, rewards = rollout(jax.random.key(0))  # both sharded over the 2 devices
+
+A trainer's state over the same mesh: :func:`jaxenvs.agents.placement.shard_trainer_fns`.
+How many devices a batch spreads over by default: :mod:`jaxenvs.placement`.
 
 The same code runs on one CPU (a mesh of one device), on several GPUs of one host, and on
 several hosts after :func:`maybe_initialize_distributed`. On a CPU-only machine, test the
@@ -53,15 +56,11 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxenvs import devices as devices_mod
 from jaxenvs.actions import random_actions
-from jaxenvs.agents.base import Trainer
 from jaxenvs.core import BatchedEnv, State
+from jaxenvs.placement import ENV_AXIS, check_count, check_divisible
 
 PyTree = Any
-
-#: name of the mesh axis the env batch is split over (:data:`jaxenvs.devices.ENV_AXIS`).
-ENV_AXIS = devices_mod.ENV_AXIS
 
 #: the environment variables :func:`maybe_initialize_distributed` reads.
 DISTRIBUTED_ENV_VARS = ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID")
@@ -136,7 +135,7 @@ def resolve_devices(devices: int | None = None) -> list[jax.Device]:
     available = jax.devices()
     if devices is None:
         return list(available)
-    n = devices_mod.check_count(devices, len(available), available[0].platform)
+    n = check_count(devices, len(available), available[0].platform)
     return list(available[:n])
 
 
@@ -158,7 +157,7 @@ def make_mesh(devices: int | Sequence[jax.Device] | None = None) -> Mesh:
 def validate_batch(num_envs: int, devices: int | Mesh) -> None:
     """Raise ``ValueError`` unless ``num_envs`` splits evenly over ``devices``."""
     n = devices.size if isinstance(devices, Mesh) else int(devices)
-    devices_mod.check_divisible(num_envs, n, hint=" (--devices)")
+    check_divisible(num_envs, n, hint=" (--devices)")
 
 
 def batch_sharding(mesh: Mesh, axis: int = 0) -> NamedSharding:
@@ -398,52 +397,3 @@ def is_replicated(x: jax.Array, mesh: Mesh) -> bool:
     """True if every device of ``mesh`` holds all of ``x``."""
     sh = x.sharding
     return sh.device_set == set(mesh.devices.flat) and sh.is_fully_replicated
-
-
-# --------------------------------------------------------------------------- trainers
-#: runner-state fields that may hold the env batch (PPO's and the tabular agents' names);
-#: a leaf under one of them is split only if its env axis has ``num_envs`` entries. Every
-#: other leaf (network params, Q-table, optimiser state, statistics, counters, keys) is
-#: replicated.
-ENV_BATCH_FIELDS = ("env_state", "disc_return", "action", "episodes")
-
-
-def shard_trainer_fns(
-    trainer: Trainer,
-    mesh: Mesh,
-    num_envs: int,
-    num_seeds: int | None = None,
-    batched: LeafPredicate | None = None,
-) -> tuple[Callable[[jax.Array], PyTree], Callable[[PyTree], tuple[PyTree, PyTree]]]:
-    """Jitted ``init(keys)`` and ``chunk(runner_state)`` of ``trainer`` over ``mesh``.
-
-    With ``num_seeds`` the two are ``vmap``-ed over a leading seed axis (as the runner
-    uses them) and the env axis is axis 1; without it they take one seed. Runner-state
-    leaves under :data:`ENV_BATCH_FIELDS` (or those ``batched`` picks) are split along the
-    env axis; the rest, network parameters included, are replicated on every device, and
-    the compiler adds the cross-device reductions (the gradient mean, the observation
-    statistics). Raises ``ValueError`` if ``num_envs`` does not divide over the mesh.
-    """
-    validate_batch(num_envs, mesh)
-    batched = batched or under_fields(*ENV_BATCH_FIELDS)
-    init, chunk = trainer.init, trainer.chunk
-    axis = 0
-    key = jax.random.key(0)
-    keys = jax.ShapeDtypeStruct(key.shape, key.dtype)
-    if num_seeds is not None:
-        init, chunk, axis = jax.vmap(init), jax.vmap(chunk), 1
-        keys = jax.ShapeDtypeStruct((num_seeds, *key.shape), key.dtype)
-
-    def env_axis_of(path: KeyPath, leaf: Any) -> bool:
-        return batched(path, leaf) and np.shape(leaf)[axis : axis + 1] == (num_envs,)
-
-    state = jax.eval_shape(init, keys)
-    state_sh = tree_shardings(state, mesh, env_axis_of, axis)
-    metrics = jax.eval_shape(chunk, state)[1]
-    init_fn = jax.jit(init, in_shardings=(replicated(mesh),), out_shardings=state_sh)
-    chunk_fn = jax.jit(
-        chunk,
-        in_shardings=(state_sh,),
-        out_shardings=(state_sh, jax.tree.map(lambda _: replicated(mesh), metrics)),
-    )
-    return init_fn, chunk_fn

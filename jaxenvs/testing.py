@@ -21,8 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-# re-exported for backward compatibility: random actions live in jaxenvs.actions
-from jaxenvs.actions import random_actions as random_actions
+from jaxenvs.actions import random_actions
 from jaxenvs.core import STANDARD_INFO_KEYS, BatchedEnv, Env, State
 
 

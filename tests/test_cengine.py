@@ -19,8 +19,9 @@ import pytest
 
 import jaxenvs
 from jaxenvs import cengine, machine
-from jaxenvs.core import resolve_physics
-from jaxenvs.testing import check_engine_parity, check_task, random_actions
+from jaxenvs.actions import random_actions
+from jaxenvs.physics import resolve_engine
+from jaxenvs.testing import check_engine_parity, check_task
 
 BUILTIN = [
     "CartPole-v0",
@@ -62,14 +63,30 @@ def test_engine_parity(env_id):
         check_engine_parity(env_id, steps=30)
 
 
-def test_auto_resolution_and_gpu_refusal():
-    assert resolve_physics("auto", "c", backend="cpu") == "c"
-    assert resolve_physics("auto", "c", backend="gpu") == "mjx"
-    assert resolve_physics("auto", "mjx", backend="cpu") == "mjx"
+def test_engine_rule_by_backend_and_batch_size():
+    """``physics="auto"``: MJX on an accelerator; on a CPU the task's ``cpu_physics``, and
+    MJX from its measured cross-over ``cpu_mjx_from`` on; ``"c"`` only on a CPU."""
+    from jaxenvs.tasks.cartpole import CartPole
+    from jaxenvs.tasks.hexapod import HexapodWalk
+
+    class Unmeasured:  # neither attribute: MJX everywhere
+        pass
+
+    assert CartPole.cpu_physics == "c" and CartPole.cpu_mjx_from is not None
+    assert resolve_engine(CartPole, "auto", backend="cpu") == "c"
+    assert resolve_engine(CartPole, "auto", 16, backend="cpu") == "c"
+    assert resolve_engine(CartPole, "auto", CartPole.cpu_mjx_from - 1, backend="cpu") == "c"
+    assert resolve_engine(CartPole, "auto", CartPole.cpu_mjx_from, backend="cpu") == "mjx"
+    assert resolve_engine(CartPole, "auto", 1 << 20, backend="gpu") == "mjx"
+    assert resolve_engine(CartPole, "auto", backend="gpu") == "mjx"
+    assert resolve_engine(HexapodWalk, "auto", 1 << 20, backend="cpu") == "c"  # C at every size
+    assert resolve_engine(Unmeasured, "auto", 16, backend="cpu") == "mjx"
+    assert resolve_engine(CartPole, "mjx", 16, backend="cpu") == "mjx"
+    assert resolve_engine(CartPole, "c", 1 << 20, backend="cpu") == "c"
     with pytest.raises(ValueError, match="CPU.*physics='mjx'"):
-        resolve_physics("c", "c", backend="gpu")
+        resolve_engine(CartPole, "c", backend="gpu")
     with pytest.raises(ValueError, match="physics must be one of"):
-        resolve_physics("warp", "c")
+        resolve_engine(CartPole, "warp")
     with pytest.raises(jaxenvs.ConfigError, match="physics"):
         jaxenvs.make("CartPole-v0", physics="C")
 
@@ -216,25 +233,22 @@ def test_config_records_resolved_engine():
     assert dataclasses.asdict(env.config)["physics"] in ("mjx", "c")
 
 
-def test_auto_picks_by_batch_size_on_a_cpu():
-    """``physics="auto"`` on a CPU: C for small batches, MJX from the task's measured
-    cross-over (``cpu_mjx_from``), for ``make`` and for a training run's config alike."""
+def test_every_maker_applies_the_engine_rule():
+    """``make``, a directly built env and a training run's config all resolve ``"auto"``
+    through :func:`resolve_engine`, with their batch size."""
     from jaxenvs.agents import run_config
-    from jaxenvs.core import cpu_auto
     from jaxenvs.tasks.cartpole import CartPole
-    from jaxenvs.tasks.hexapod import HexapodWalk
 
-    assert cpu_auto(CartPole, 16, backend="cpu") is None
-    assert cpu_auto(CartPole, CartPole.cpu_mjx_from, backend="cpu") == "mjx"
-    assert cpu_auto(CartPole, 1 << 20, backend="gpu") is None
-    assert cpu_auto(HexapodWalk, 1 << 20, backend="cpu") is None  # C at every size
-    if jax.default_backend() != "cpu":
-        return
-    assert jaxenvs.make("CartPole-v0", num_envs=16).env.physics == "c"
-    assert jaxenvs.make("CartPole-v0", num_envs=4096).env.physics == "mjx"
-    assert jaxenvs.make("CartPole-v0", num_envs=4096, physics="c").env.physics == "c"
-    for num_envs, want in ((16, "c"), (4096, "mjx")):
+    on_cpu = jax.default_backend() == "cpu"
+    for num_envs in (16, 4096):
+        want = resolve_engine(CartPole, "auto", num_envs)
+        assert want == ("c" if on_cpu and num_envs < CartPole.cpu_mjx_from else "mjx")
+        assert jaxenvs.make("CartPole-v0", num_envs=num_envs).env.physics == want
         resolved = run_config.resolve_config(
             "CartPole-v0", "ppo", agent_overrides={"num_envs": num_envs}
         )
         assert run_config.engine_resolved(resolved).env.physics == want
+    assert jaxenvs.make("CartPole-v0").physics == resolve_engine(CartPole, "auto")
+    assert CartPole().physics == resolve_engine(CartPole, "auto")
+    if on_cpu:
+        assert jaxenvs.make("CartPole-v0", num_envs=4096, physics="c").env.physics == "c"

@@ -188,7 +188,7 @@ def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
     assert calls["n"] == 2  # no chunk started after the request
     _, meta = checkpoint.read(out / runner.CHECKPOINT_FILE)
     assert meta["metadata"]["chunk"] == 2
-    assert {int(r["chunk"]) for r in runner._read_progress(out / runner.PROGRESS_FILE)} == {0, 1}
+    assert {int(r["chunk"]) for r in runner.read_progress(out / runner.PROGRESS_FILE)} == {0, 1}
     summary = json.loads((out / runner.SUMMARY_FILE).read_text())
     assert summary["interrupted"] and summary["chunks"] == 2
     assert any("stopping after the running chunk" in n for n in notices), notices

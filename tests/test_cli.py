@@ -62,7 +62,7 @@ def _chain_file(tmp_path, algo="sarsa", **agent):
 )
 def test_bad_config_names_key_and_file(tmp_path, capsys, section, entry, key):
     data = yaml.safe_load(
-        resources.files("jaxenvs.configs").joinpath("cartpole_qlearn.yaml").read_text()
+        resources.files("jaxenvs.configs").joinpath("qlearning_CartPole-v0.yaml").read_text()
     )
     data[section].update(entry)
     path = _write(tmp_path / "bad.yaml", data)
@@ -97,11 +97,15 @@ def test_command_line_overrides_file(tmp_path):
 
 def test_shipped_configs_resolve():
     files = resources.files("jaxenvs.configs")
-    for (algo, env_id), name in runner.SHIPPED_CONFIGS.items():
-        with resources.as_file(files.joinpath(name)) as path:
-            resolved = runner.resolve_config(None, None, path)
+    names = sorted(f.name for f in files.iterdir() if f.name.endswith(".yaml"))
+    assert "qlearning_CartpoleStayUp-v0.yaml" in names
+    for name in names:
+        algo, env_id = name.removesuffix(".yaml").split("_", 1)  # <algo>_<id>.yaml
+        path = runner.shipped_config(algo, env_id)
+        assert path is not None and path.name == name
+        resolved = runner.resolve_config(None, None, path)
         assert (resolved.algo, resolved.env_id) == (algo, env_id), name
-    with resources.as_file(files.joinpath("cartpole_stayup_qlearn.yaml")) as path:
+    with resources.as_file(files.joinpath("qlearning_CartpoleStayUp-v0.yaml")) as path:
         course = runner.resolve_config(None, None, path)
     env, agent = course.env, course.agent
     assert (env.n_actions, env.running_step, env.pos_step) == (4, 0.04, 0.016)

@@ -19,15 +19,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxenvs import machine
-from jaxenvs.core import divisible_devices
+from jaxenvs import machine, placement
 
 _SCRIPT = textwrap.dedent(
     """
     import json, sys, warnings
     import jax, jax.numpy as jnp, numpy as np
     import jaxenvs
-    from jaxenvs.testing import random_actions
+    from jaxenvs.actions import random_actions
 
     out = sys.argv[1]
     res, arrays = {"devices": jax.local_device_count()}, {}
@@ -139,10 +138,10 @@ def test_vector_env_spread_matches_one_device(four_devices):
 
 
 def test_divisible_devices():
-    assert divisible_devices(4096, 16) == 16
-    assert divisible_devices(1001, 16) == 13
-    assert divisible_devices(7, 16) == 7
-    assert divisible_devices(1, 8) == 1
+    assert placement.divisible_devices(4096, 16) == 16
+    assert placement.divisible_devices(1001, 16) == 13
+    assert placement.divisible_devices(7, 16) == 7
+    assert placement.divisible_devices(1, 8) == 1
 
 
 _KNOB = textwrap.dedent(
@@ -189,4 +188,4 @@ def test_use_cores_too_late_says_how_to_fix():
 
 def test_usable_cores_and_device_rule():
     assert machine.usable_cores() == len(os.sched_getaffinity(0))
-    assert [machine.host_devices_for(n) for n in (1, 2, 3, 16)] == [1, 1, 1, 8]
+    assert [placement.host_devices_for(n) for n in (1, 2, 3, 16)] == [1, 1, 1, 8]

@@ -139,22 +139,22 @@ def test_unwritable_store_still_runs(tmp_path):
 
 # ------------------------------------------------------- JAX's compile cache, in process
 def test_compile_cache_entry_verifies_key_and_content():
-    from jaxenvs import compile_cache
+    from jaxenvs import _jax_cache_hook as hook
 
-    blob = compile_cache.seal("k1", b"executable")
-    assert compile_cache.unseal("k1", blob) == b"executable"
-    assert compile_cache.unseal("k2", blob) is None  # another key's entry
-    assert compile_cache.unseal("k1", blob[:-1]) is None  # truncated
+    blob = hook.seal("k1", b"executable")
+    assert hook.unseal("k1", blob) == b"executable"
+    assert hook.unseal("k2", blob) is None  # another key's entry
+    assert hook.unseal("k1", blob[:-1]) is None  # truncated
     flipped = bytearray(blob)
     flipped[-3] ^= 1
-    assert compile_cache.unseal("k1", bytes(flipped)) is None
-    assert compile_cache.unseal("k1", b"executable") is None  # unsealed (older) entry
+    assert hook.unseal("k1", bytes(flipped)) is None
+    assert hook.unseal("k1", b"executable") is None  # an entry without a digest
 
 
 def test_verified_cache_removes_a_damaged_entry_and_stores_anew(tmp_path):
-    from jaxenvs import compile_cache
+    from jaxenvs import _jax_cache_hook as hook
 
-    cache = compile_cache.VerifiedCache(str(tmp_path), max_size=10**6)
+    cache = hook.verified_cache(tmp_path, max_size=10**6)
     assert cache.eviction_enabled  # bounded, hence locked
     cache.put("a", b"A" * 100)
     cache.put("b", b"B" * 100)
@@ -168,28 +168,65 @@ def test_verified_cache_removes_a_damaged_entry_and_stores_anew(tmp_path):
 
 
 def test_verified_cache_evicts_past_its_size_even_without_access_times(tmp_path):
-    from jaxenvs import compile_cache
+    from jaxenvs import _jax_cache_hook as hook
 
     (tmp_path / "old-cache").write_bytes(b"x" * 600)  # an unbounded cache's entry
-    cache = compile_cache.VerifiedCache(str(tmp_path), max_size=1000)
+    cache = hook.verified_cache(tmp_path, max_size=1000)
     cache.put("new", b"y" * 500)
     assert not (tmp_path / "old-cache").exists()
     assert cache.get("new") == b"y" * 500
 
 
-def test_enable_bounds_the_cache_and_jax_builds_it_verified(tmp_path):
-    from jax._src import compilation_cache as jax_cache
+def test_hook_only_on_the_tested_jax_releases(monkeypatch):
+    from jaxenvs import _jax_cache_hook as hook
 
+    assert hook.jax_release("0.10.2") == (0, 10) and hook.jax_release("0.12.0rc1") == (0, 12)
+    for version, tested in (("0.10.2", True), ("0.11.9", True), ("0.12.0", False), ("1.0", False)):
+        monkeypatch.setattr(jax, "__version__", version)
+        assert hook.supported() is tested
+
+
+def _compile_fresh(factor: float) -> None:
+    # a constant of its own: not in JAX's in-memory cache, so it reaches the file cache
+    jax.jit(lambda x: x * factor + 1)(jnp.arange(3.0)).block_until_ready()
+
+
+def test_enable_bounds_the_cache_and_verifies_its_entries(tmp_path):
+    from jaxenvs import _jax_cache_hook as hook
     from jaxenvs import compile_cache
 
+    assert hook.supported(), f"jax {jax.__version__}: test the fallback below instead"
     # (the conftest's autouse fixture restores the session's cache afterwards)
     assert compile_cache.enable(tmp_path, max_bytes=10**8) == tmp_path
-    jax.jit(lambda x: x * 7 + 1)(jnp.arange(3.0)).block_until_ready()
-    built = jax_cache._get_cache(jax.devices()[0].client)
-    assert isinstance(built, compile_cache.VerifiedCache)
-    assert built.max_size == 10**8 and (tmp_path / ".lockfile").exists()
+    _compile_fresh(7.0)
+    assert (tmp_path / ".lockfile").exists()  # bounded: JAX locks its files
     entries = list(tmp_path.glob("*-cache"))
-    assert entries and all(p.read_bytes().startswith(compile_cache.MAGIC) for p in entries)
+    assert entries and all(p.read_bytes().startswith(hook.MAGIC) for p in entries)
+
+
+def test_enable_on_an_untested_jax_uses_its_own_cache(tmp_path, monkeypatch):
+    from jaxenvs import _jax_cache_hook as hook
+    from jaxenvs import compile_cache
+
+    monkeypatch.setattr(jax, "__version__", "0.12.0")
+    assert compile_cache.enable(tmp_path, max_bytes=10**8) == tmp_path
+    _compile_fresh(11.0)
+    assert (tmp_path / ".lockfile").exists()  # still bounded and locked
+    entries = list(tmp_path.glob("*-cache"))
+    assert entries and not any(p.read_bytes().startswith(hook.MAGIC) for p in entries)
+
+
+def test_unwritable_cache_directory_is_named_once(tmp_path):
+    from jaxenvs import compile_cache
+
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("")
+    with pytest.warns(UserWarning) as record:
+        assert compile_cache.enable(blocker / "cache") is None
+    (message,) = [str(w.message) for w in record]
+    assert str(blocker / "cache") in message and "compile cold" in message
+    assert "\n" not in message
+    assert compile_cache.active() is None
 
 
 # --------------------------------------------- the battery: whole runs on a damaged cache

@@ -110,7 +110,7 @@ def _figures(summary):
 
 
 def _rows(run_dir):
-    rows = runner._read_progress(Path(run_dir) / runner.PROGRESS_FILE)
+    rows = runner.read_progress(Path(run_dir) / runner.PROGRESS_FILE)
     return [{k: v for k, v in r.items() if k not in TIMING} for r in rows]
 
 
@@ -163,7 +163,7 @@ def test_ppo_ctrl_c_then_resume_gives_the_same_results(ppo, tmp_path, monkeypatc
 
 def test_ppo_divergence_is_counted_in_the_run_metrics(ppo):
     _, out_a, summary = ppo
-    rows = runner._read_progress(out_a / runner.PROGRESS_FILE)
+    rows = runner.read_progress(out_a / runner.PROGRESS_FILE)
     diverged = [int(r["diverged"]) for r in rows]
     assert sum(diverged) > 0, rows  # the 0.5 bound is passed by some envs
     assert all(d <= int(r["episodes_in_chunk"]) for d, r in zip(diverged, rows, strict=True))
@@ -205,6 +205,6 @@ def test_tabular_resume_after_any_chunk(chain, tmp_path, monkeypatch, write):
 
 def test_tabular_divergence_is_counted_and_compiled_once(chain, traces):
     _, out_a, _ = chain
-    rows = runner._read_progress(out_a / runner.PROGRESS_FILE)
+    rows = runner.read_progress(out_a / runner.PROGRESS_FILE)
     assert sum(int(r["diverged"]) for r in rows) > 0
     assert traces["qlearning:Test-Chain-v0:mjx:chunk"] == 1, traces  # the fakes' "engine"

@@ -1,7 +1,7 @@
 """The task hooks' key contract: ``reset`` and ``step`` split the key once into named
 subkeys, each hook gets its own, and a task with observation noise stays deterministic per
-key (and passes the battery). Also: termination is its own hook, and hooks written to the
-old signatures are refused with a message saying how to fix them."""
+key (and passes the battery). Also: termination is its own hook, and a reward hook that
+returns more than ``(reward, metrics)`` is refused with a message saying so."""
 
 from __future__ import annotations
 
@@ -127,14 +127,6 @@ def test_termination_is_its_own_hook() -> None:
     assert not bool(env._terminated(s.data, NoExtras(), params))
     reward, metrics = env._reward(s.data, s.data, jnp.zeros(1), NoExtras(), params)
     assert reward.shape == () and metrics == {}
-
-
-def test_old_hook_signatures_are_refused() -> None:
-    with pytest.raises(TypeError, match=r"OldObserve._observe must take \(key, data"):
-
-        class OldObserve(CartpoleBalance):
-            def _observe(self, data, extras, params):  # type: ignore[no-untyped-def, override]
-                return data.qpos
 
 
 def test_a_reward_that_still_returns_termination_is_refused() -> None:

@@ -102,3 +102,49 @@ def test_find_cycle():
 def test_no_import_cycle():
     cycle = find_cycle(import_graph())
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+#: the env layers (physics, robots, tasks, batching and placement): a user of envs only
+ENV_LAYER = (
+    "jaxenvs.core",
+    "jaxenvs.physics",
+    "jaxenvs.placement",
+    "jaxenvs.sharding",
+    "jaxenvs.registry",
+    "jaxenvs.sim",
+    "jaxenvs.cengine",
+    "jaxenvs.testing",
+)
+
+
+def reachable(graph: dict[str, set[str]], start: str) -> set[str]:
+    """Every module ``start`` imports, directly or through others."""
+    seen: set[str] = set()
+    todo = [start]
+    while todo:
+        for nxt in graph.get(todo.pop(), ()):
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return seen
+
+
+def test_reachable():
+    assert reachable({"a": {"b"}, "b": {"c"}, "c": set()}, "a") == {"b", "c"}
+
+
+def test_env_layer_imports_no_agent():
+    graph = import_graph()
+    layer = [
+        m for m in graph if m in ENV_LAYER or m.startswith(("jaxenvs.tasks", "jaxenvs.robots"))
+    ]
+    assert "jaxenvs.tasks.cartpole" in layer
+    for module in layer:
+        agents = sorted(m for m in reachable(graph, module) if m.startswith("jaxenvs.agents"))
+        assert not agents, f"{module} imports {', '.join(agents)}"
+
+
+def test_private_jax_only_in_its_guarded_module():
+    """JAX's internals are read in one module, which checks the JAX release first."""
+    readers = sorted(name for name, path in _modules().items() if "jax._src" in path.read_text())
+    assert readers == ["jaxenvs._jax_cache_hook"]

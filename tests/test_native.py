@@ -24,8 +24,9 @@ import pytest
 
 import jaxenvs
 from jaxenvs import cengine, native
+from jaxenvs.actions import random_actions
 from jaxenvs.tasks.cartpole import BalanceConfig, CartpoleBalance
-from jaxenvs.testing import check_engine_parity, random_actions
+from jaxenvs.testing import check_engine_parity
 
 NATIVE_OFF = os.environ.get(native.ENV_VAR, "1") == "0"
 

@@ -42,7 +42,7 @@ import numpy as np
 import pytest
 
 import jaxenvs
-from jaxenvs.testing import random_actions
+from jaxenvs.actions import random_actions
 
 STEPS = 100
 

@@ -126,10 +126,10 @@ def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch)
             "Test-Chain-v0", "qlearning", None, agent, dict(eval_episodes=3, video=False)
         )
         for name in ("cold", "warm"):
-            runner._programs.cache_clear()
+            runner.build_programs.cache_clear()
             outs.append(tmp_path / name)
             runner.train(resolved, outs[-1], quiet=True)
-    runner._programs.cache_clear()
+    runner.build_programs.cache_clear()
     # init, chunk and eval (the eval on a background thread): traced cold, loaded warm
     assert loaded == [False] * 3 + [True] * 3
     stored = sorted(p.name.split("-")[-2] for p in (tmp_path / "cache/programs").iterdir())
@@ -137,7 +137,7 @@ def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch)
     a, b = (checkpoint.read(o / runner.CHECKPOINT_FILE)[0] for o in outs)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
-    rows = [runner._read_progress(o / runner.PROGRESS_FILE) for o in outs]
+    rows = [runner.read_progress(o / runner.PROGRESS_FILE) for o in outs]
     assert [r["mean_return"] for r in rows[0]] == [r["mean_return"] for r in rows[1]]
 
 
@@ -150,7 +150,7 @@ def test_user_tasks_are_not_stored(tmp_path, monkeypatch):
             "obs_high": [7.0]}, {}
         )  # fmt: skip
         env, trainer = runner.build(resolved)
-        assert runner._program_store(resolved, env, trainer) is None
+        assert runner.program_store(resolved, env, trainer) is None
 
 
 def test_c_engine_programs_are_stored_and_loaded(tmp_path, monkeypatch):
@@ -172,14 +172,14 @@ def test_c_engine_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     resolved = runner.resolve_config(
         "CartPole-v0", "qlearning", None, agent, dict(eval_episodes=2, video=False)
     )
-    resolved = runner._engine_resolved(resolved)
+    resolved = runner.engine_resolved(resolved)
     assert resolved.env.physics == "c"
     outs = []
     for name in ("cold", "warm"):
-        runner._programs.cache_clear()
+        runner.build_programs.cache_clear()
         outs.append(tmp_path / name)
         runner.train(resolved, outs[-1], quiet=True)
-    runner._programs.cache_clear()
+    runner.build_programs.cache_clear()
     if not native.available():
         assert loaded == []  # nothing stored on the callback path
         return

@@ -48,7 +48,7 @@ def _leaves(run_dir):
 
 
 def _progress(run_dir):
-    rows = runner._read_progress(run_dir / runner.PROGRESS_FILE)
+    rows = runner.read_progress(run_dir / runner.PROGRESS_FILE)
     return [tuple(r[c] for c in METRIC_COLUMNS) for r in rows]
 
 
@@ -71,7 +71,7 @@ def test_outputs_and_summary(full_run):
     assert summary["eval_episodes"] == 6
     # the chain pays 1 at the goal: a learned greedy policy gets there every time
     assert summary["eval_mean_return"] == 1.0
-    rows = runner._read_progress(out / "progress.csv")
+    rows = runner.read_progress(out / "progress.csv")
     assert len(rows) == 8 and {r["seed"] for r in rows} == {"0", "1"}
     assert "epsilon" in rows[0]
     # overall score = mean length over training episodes, recomputed from the rows
@@ -88,7 +88,7 @@ def test_resume_matches_an_uninterrupted_run(full_run, tmp_path):
     out_b = tmp_path / "b"
     half = runner.train(_chain_config(), out_b, quiet=True, max_chunks=2)
     assert half["chunks"] == 2 and not half["finished"]
-    assert len(runner._read_progress(out_b / "progress.csv")) == 4
+    assert len(runner.read_progress(out_b / "progress.csv")) == 4
     summary_b = runner.train(runner.load_run_config(out_b), out_b, resume=True, quiet=True)
     for a, b in zip(_leaves(out_a), _leaves(out_b), strict=True):
         np.testing.assert_array_equal(a, b)

@@ -36,6 +36,7 @@ import numpy as np
 import pytest
 
 from jaxenvs import sharding
+from jaxenvs.placement import ENV_AXIS
 
 ROLLOUT_TOL = 1e-6
 PPO_TOL = 1e-4
@@ -47,6 +48,7 @@ _SCRIPT = textwrap.dedent(
     import jaxenvs
     from jaxenvs import sharding as sh
     from jaxenvs.agents import ppo
+    from jaxenvs.agents.placement import shard_trainer_fns
 
     out_path = sys.argv[1]
     run = json.loads(sys.argv[2])
@@ -73,7 +75,7 @@ _SCRIPT = textwrap.dedent(
         checks[f"rollout{n}_devices"] = sh.num_shards((state, rewards))
     for n in ppo_meshes:
         mesh = sh.make_mesh(n)
-        init, chunk = sh.shard_trainer_fns(trainer, mesh, cfg.num_envs, num_seeds=1)
+        init, chunk = shard_trainer_fns(trainer, mesh, cfg.num_envs, num_seeds=1)
         rs = init(jax.random.split(jax.random.key(0), 1))
         for _ in range(2):
             rs, metrics = chunk(rs)
@@ -233,7 +235,7 @@ def test_validate_batch() -> None:
 
 def test_make_mesh_counts() -> None:
     mesh = sharding.make_mesh()
-    assert mesh.size == jax.device_count() and mesh.axis_names == (sharding.ENV_AXIS,)
+    assert mesh.size == jax.device_count() and mesh.axis_names == (ENV_AXIS,)
     assert sharding.make_mesh(1).size == 1
     with pytest.raises(ValueError, match="only"):
         sharding.make_mesh(jax.device_count() + 1)

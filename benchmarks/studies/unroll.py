@@ -18,8 +18,8 @@ from typing import Any
 import jax
 
 import jaxenvs
+from jaxenvs.actions import random_actions
 from jaxenvs.core import BatchedEnv, State
-from jaxenvs.testing import random_actions
 
 
 def make_run(benv: BatchedEnv, steps: int, unroll: int) -> Any:

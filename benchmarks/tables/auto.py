@@ -10,7 +10,7 @@ def engines_sweep(recs: list[Rec]) -> Cells:
     """Both engines at each batch size, what physics='auto' picks there (the task's class
     attribute ``cpu_mjx_from``, read from jaxenvs), and auto over the faster engine."""
     from jaxenvs import registry
-    from jaxenvs.core import cpu_auto
+    from jaxenvs.physics import resolve_engine
 
     cells = [
         [
@@ -30,7 +30,7 @@ def engines_sweep(recs: list[Rec]) -> Cells:
         for m in (m for m in mjx if m["num_envs"] in by_c):
             n = m["num_envs"]
             cr = by_c[n]
-            pick = cpu_auto(factory, n, backend="cpu") or getattr(factory, "cpu_physics", "mjx")
+            pick = resolve_engine(factory, "auto", n, backend="cpu")
             got = (m if pick == "mjx" else cr)["env_steps_per_s"]
             fast = max(m["env_steps_per_s"], cr["env_steps_per_s"])
             cells.append(

@@ -17,11 +17,12 @@ from typing import Any
 
 import jax
 
-from jaxenvs import compile_cache, program_cache, registry, sharding
+from jaxenvs import compile_cache, program_cache, registry
 from jaxenvs.agents.base import Trainer
 from jaxenvs.agents.evaluation import eval_key, make_evaluator
+from jaxenvs.agents.placement import run_mesh, shard_trainer_fns
 from jaxenvs.agents.run_config import ResolvedConfig, build, seed_keys
-from jaxenvs.core import Env, batch_devices
+from jaxenvs.core import Env
 
 PyTree = Any
 
@@ -55,22 +56,19 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     compiles and runs the training chunks (XLA compiles one program per core, so on a
     small machine this hides most of the evaluator's compile). Cached per config, so a
     resume or a second run in the same process reuses the compiled programs. Over more
-    than one device (``devices``; ``None`` = all), init and chunk split the env batch
-    over a mesh of them (:func:`jaxenvs.sharding.shard_trainer_fns`). On one device,
+    than one device (``devices``; ``None``: :func:`jaxenvs.agents.placement.run_mesh`),
+    init and chunk split the env batch over a mesh of them
+    (:func:`jaxenvs.agents.placement.shard_trainer_fns`). On one device,
     with the compile cache on, init, chunk and evaluator are stored traced and loaded on
     later runs (:func:`program_store`), so a warm start skips most tracing as well as
     compiling.
     """
     env, trainer = build(resolved)
-    if devices is None and jax.process_count() == 1:
-        # all local devices that num_envs divides over; one under the C engine, whose
-        # own threads spread the batch
-        devices = batch_devices(resolved.agent.num_envs, None, env.physics)
-    mesh = sharding.make_mesh(devices)
+    mesh = run_mesh(resolved.agent.num_envs, env.physics, devices)
     init_fn: Any = None
     chunk_fn: Any = None
     if mesh.size > 1:
-        init_fn, chunk_fn = sharding.shard_trainer_fns(
+        init_fn, chunk_fn = shard_trainer_fns(
             trainer, mesh, resolved.agent.num_envs, num_seeds=resolved.train.num_seeds
         )
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)

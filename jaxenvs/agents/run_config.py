@@ -31,7 +31,8 @@ import jax.numpy as jnp
 from jaxenvs import registry
 from jaxenvs.agents.base import Trainer
 from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
-from jaxenvs.core import Env, cpu_auto, resolve_physics
+from jaxenvs.core import Env
+from jaxenvs.physics import with_engine
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,21 +186,10 @@ def resolve_config(
     return ResolvedConfig(env_id, task_config, algo, agent, run)
 
 
-#: shipped configs whose names predate the ``<algo>_<id>.yaml`` rule (the course's names)
-SHIPPED_CONFIGS = {
-    ("qlearning", "CartPole-v0"): "cartpole_qlearn.yaml",
-    ("sarsa", "CartPole-v0"): "cartpole_sarsa.yaml",
-    ("qlearning", "CartpoleStayUp-v0"): "cartpole_stayup_qlearn.yaml",
-    ("sarsa", "CartpoleStayUp-v0"): "cartpole_stayup_sarsa.yaml",
-}
-
-
 def shipped_config(algo: str, env_id: str) -> Path | None:
-    """The tuned config shipped for ``algo`` on ``env_id`` (``configs/<algo>_<id>.yaml``
-    or the entry in :data:`SHIPPED_CONFIGS`), used when no ``--config`` is given; ``None``
-    when there is none."""
-    name = SHIPPED_CONFIGS.get((algo, env_id), f"{algo}_{env_id}.yaml")
-    path = Path(__file__).resolve().parent.parent / "configs" / name
+    """The tuned config shipped for ``algo`` on ``env_id``, ``configs/<algo>_<id>.yaml``,
+    used when no ``--config`` is given; ``None`` when there is none."""
+    path = Path(__file__).resolve().parent.parent / "configs" / f"{algo}_{env_id}.yaml"
     return path if path.is_file() else None
 
 
@@ -233,7 +223,8 @@ def with_physics(resolved: ResolvedConfig, physics: str | None) -> ResolvedConfi
 
 
 def engine_resolved(resolved: ResolvedConfig) -> ResolvedConfig:
-    """``resolved`` with ``physics="auto"`` replaced by the engine it picks on this machine.
+    """``resolved`` with ``physics="auto"`` replaced by the engine it picks on this machine
+    for the agent's ``num_envs`` (:func:`jaxenvs.physics.resolve_engine`).
 
     That is what a run's ``config.yaml`` records, so a run and its resume (or a repeat of
     it) in one process share one set of compiled programs
@@ -243,12 +234,7 @@ def engine_resolved(resolved: ResolvedConfig) -> ResolvedConfig:
     if getattr(resolved.env, "physics", None) != "auto":
         return resolved
     factory = registry.spec(resolved.env_id).factory
-    cpu_default = getattr(factory, "cpu_physics", None) if isinstance(factory, type) else None
-    by_batch = cpu_auto(factory, getattr(resolved.agent, "num_envs", None))
-    if by_batch is not None:
-        physics = by_batch
-    elif isinstance(cpu_default, str):
-        physics = resolve_physics("auto", cpu_default)
-    else:  # a factory function: build the env to see what it picked
-        physics = factory(resolved.env).physics
-    return dataclasses.replace(resolved, env=dataclasses.replace(resolved.env, physics=physics))
+    env = with_engine(factory, resolved.env, getattr(resolved.agent, "num_envs", None))
+    if env.physics == "auto":  # a factory function: build the env to see what it picked
+        env = dataclasses.replace(env, physics=factory(env).physics)
+    return dataclasses.replace(resolved, env=env)

@@ -49,7 +49,6 @@ from jaxenvs.agents.run_config import (
     CURVE_FILE,
     PROGRESS_FILE,
     SECTIONS,
-    SHIPPED_CONFIGS,
     SUMMARY_FILE,
     VIDEO_FILE,
     AlgoEntry,
@@ -65,12 +64,6 @@ from jaxenvs.agents.run_config import (
     with_physics,
 )
 
-# the names these had when they all lived in this module (tests and tools read them)
-_read_progress = read_progress
-_programs = build_programs
-_program_store = program_store
-_engine_resolved = engine_resolved
-
 __all__ = [
     "ALGORITHMS",
     "CHECKPOINT_FILE",
@@ -78,7 +71,6 @@ __all__ = [
     "CURVE_FILE",
     "PROGRESS_FILE",
     "SECTIONS",
-    "SHIPPED_CONFIGS",
     "SUMMARY_FILE",
     "VIDEO_FILE",
     "VIDEO_FPS",
