@@ -16,6 +16,7 @@ from mujoco import mjx
 
 from jaxenvs.robots import robot_xml
 from jaxenvs.robots.base import STATE_SENSORS, Robot, gravity_in_body, quat_to_mat
+from jaxenvs.robots.cartpole import Cartpole, CartpoleRanges
 from jaxenvs.robots.hexapod import (
     JOINT_RANGE,
     Hexapod,
@@ -24,8 +25,9 @@ from jaxenvs.robots.hexapod import (
     leg_tip,
     servo_targets,
 )
+from jaxenvs.robots.reacher import ReacherArm, ReacherRanges
 
-ROBOTS = [Hexapod, HexapodLeg]
+ROBOTS = [Cartpole, ReacherArm, Hexapod, HexapodLeg]
 
 
 def _random_state(model: mujoco.MjModel, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
@@ -45,7 +47,7 @@ def _random_state(model: mujoco.MjModel, rng: np.random.Generator) -> tuple[np.n
 def test_every_joint_has_an_encoder_and_privileged_sensors_exist(cls):
     robot = cls()
     scalar = [n for n, j in robot.joints.items() if j.kind in ("hinge", "slide")]
-    assert len(robot.encoders) == len(scalar) == robot.model.nu
+    assert len(robot.encoders) == len(scalar)
     assert {robot.sensors[n].joint for n in robot.encoders} == set(scalar)
     assert set(robot.privileged) <= set(robot.sensors)
     assert set(robot.observable()) == set(robot.sensors) - set(robot.privileged)
@@ -174,7 +176,7 @@ def test_frame_helpers_match_mujoco():
     np.testing.assert_allclose(gravity_in_body(jnp.asarray(q)), mat.T @ [0, 0, -1], atol=1e-6)
 
 
-@pytest.mark.parametrize("cls", ROBOTS)
+@pytest.mark.parametrize("cls", [Hexapod, HexapodLeg])
 def test_hexapod_randomisation_stays_in_its_ranges(cls):
     robot = cls()
     sim = robot.make_sim(0.01, 5)
@@ -220,3 +222,71 @@ def test_a_sensor_the_robot_cannot_evaluate_is_refused(tmp_path):
     Moved.xml = path
     with pytest.raises(ValueError, match="'imu_gyro' must be on an unrotated site"):
         Moved()
+
+
+@pytest.mark.parametrize("cls", [Cartpole, ReacherArm])
+def test_motor_command_map_is_the_action(cls):
+    robot = cls()
+    low, high = robot.command_range
+    np.testing.assert_array_equal(low, -np.ones(robot.model.nu))
+    np.testing.assert_array_equal(high, np.ones(robot.model.nu))
+    a = jnp.asarray(np.random.default_rng(4).uniform(-1, 1, robot.model.nu), jnp.float32)
+    np.testing.assert_array_equal(robot.command(a), a)
+    assert not robot.privileged
+
+
+def test_cartpole_readings_name_its_state():
+    robot = Cartpole()
+    blank = mjx.make_data(robot.model)
+    data = blank.replace(qpos=jnp.array([0.5, -0.2]), qvel=jnp.array([1.5, 3.0]))
+    readings = robot.sense(data)
+    np.testing.assert_array_equal(robot.state(readings), np.float32([0.5, 1.5, -0.2, 3.0]))
+
+
+def test_cartpole_randomisation_stays_in_its_ranges():
+    robot = Cartpole()
+    base = robot.default_fields(robot.make_sim(0.01, 1))
+    ranges = CartpoleRanges(mass_scale=(0.5, 0.6), damping_range=(0.1, 0.2), gain_scale=(2, 3))
+    draws = jax.vmap(lambda k: robot.sample_fields(k, base, ranges))(
+        jax.random.split(jax.random.key(1), 64)
+    )
+    moving = np.asarray(base["body_mass"]) > 0
+    mass = np.asarray(draws["body_mass"])[:, moving] / np.asarray(base["body_mass"])[moving]
+    assert mass.min() >= 0.5 - 1e-6 and mass.max() <= 0.6 + 1e-6
+    damping = np.asarray(draws["dof_damping"]) - np.asarray(base["dof_damping"])
+    assert damping.min() >= 0.1 - 1e-6 and damping.max() <= 0.2 + 1e-6
+    gear = np.asarray(draws["actuator_gear"])[:, 0, 0] / float(base["actuator_gear"][0, 0])
+    assert gear.min() >= 2 - 1e-5 and gear.max() <= 3 + 1e-5
+
+
+def test_reacher_randomisation_scales_the_links_only():
+    robot = ReacherArm()
+    base = robot.default_fields(robot.make_sim(0.02, 1))
+    ranges = ReacherRanges(mass_scale=(0.5, 0.6), armature_scale=(2, 3))
+    draws = jax.vmap(lambda k: robot.sample_fields(k, base, ranges))(
+        jax.random.split(jax.random.key(2), 64)
+    )
+    mass0 = np.asarray(base["body_mass"])
+    ratio = np.asarray(draws["body_mass"]) / np.where(mass0 > 0, mass0, 1)
+    links = [
+        mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_BODY, b) for b in ("link0", "link1")
+    ]
+    others = [b for b in range(robot.model.nbody) if b not in links]
+    assert ratio[:, links].min() >= 0.5 - 1e-6 and ratio[:, links].max() <= 0.6 + 1e-6
+    np.testing.assert_array_equal(
+        np.asarray(draws["body_mass"])[:, others],
+        np.broadcast_to(mass0[others], (64, len(others))),
+    )
+    armature = np.asarray(draws["dof_armature"]) / np.asarray(base["dof_armature"])
+    assert armature.min() >= 2 - 1e-5 and armature.max() <= 3 + 1e-5
+
+
+def test_reacher_fingertip_matches_mujoco_site():
+    robot = ReacherArm()
+    m = robot.model
+    d = mujoco.MjData(m)
+    for q in np.random.default_rng(5).uniform(-4, 4, (20, 2)):
+        d.qpos[:] = np.float32(q)
+        mujoco.mj_kinematics(m, d)
+        tip = robot.fingertip(jnp.asarray(q, jnp.float32))
+        np.testing.assert_allclose(tip, d.site_xpos[robot.tip_site, :2], atol=2e-6)

@@ -367,11 +367,32 @@ class RobotTask:
     The task sets ``self.robot`` and ``self._params`` (a params pytree whose ``model`` holds
     :meth:`Robot.default_fields`); this gives ``default_params`` and a ``sample_params``
     that redraws ``model`` from the robot's ranges in the task's config.
+
+    The observation is :meth:`observation` of the robot's readings and the task's own
+    state (:meth:`task_state`), so that a loop driving a real robot can compute it from
+    readings received over a link: ``_observe`` is
+    ``observation(robot.sense(data), task_state(data, extras))`` (a task adds its
+    observation noise around it).
     """
 
     robot: Robot
     _params: Any
     config: Any
+
+    def observation(self, readings: Readings, task: Any) -> jax.Array:
+        """The noiseless observation of the robot's ``readings`` (sensor name -> reading)
+        and the task's own state ``task`` (:meth:`task_state`)."""
+        raise NotImplementedError(f"{type(self).__name__} must define observation()")
+
+    def task_state(self, data: Any, extras: Any) -> Any:
+        """What the observation needs besides the readings (a target, a command); the
+        task's ``extras`` unless the task says otherwise."""
+        del data
+        return extras
+
+    def _observe(self, key: jax.Array, data: Any, extras: Any, params: Any) -> jax.Array:
+        del key, params
+        return self.observation(self.robot.sense(data), self.task_state(data, extras))
 
     @property
     def default_params(self) -> Any:

@@ -292,7 +292,7 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         reward = (
             c.progress_weight * progress
             - c.energy_weight * energy
-            - c.tilt_weight * (1.0 - Hexapod.upright(now))
+            - c.tilt_weight * (1.0 - self.robot.upright(now))
             - c.spin_weight * spin
             + c.alive_bonus
         )
@@ -303,7 +303,7 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         """Fallen: the body below ``min_height`` or tilted past ``min_upright``."""
         c = self.config
         now = self.robot.sense(data)
-        return (Hexapod.height(now) < c.min_height) | (Hexapod.upright(now) < c.min_upright)
+        return (self.robot.height(now) < c.min_height) | (self.robot.upright(now) < c.min_upright)
 
 
 # ------------------------------------------------------------------------ HexapodOneLeg-v0
@@ -406,11 +406,6 @@ class HexapodOneLeg(RobotTask, Env[OneLegConfig]):
         return jnp.concatenate(
             [self.robot.joint_pos(readings), self.robot.joint_vel(readings), target]
         )
-
-    def _observe(
-        self, key: jax.Array, data: mjx.Data, extras: OneLegExtras, params: HexapodParams
-    ) -> jax.Array:
-        return self.observation(self.robot.sense(data), self.task_state(data, extras))
 
     def _reward(
         self,
