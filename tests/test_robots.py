@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from mujoco import mjx
 
+import jaxenvs
 from jaxenvs.robots import robot_xml
 from jaxenvs.robots.base import STATE_SENSORS, Robot, gravity_in_body, quat_to_mat
 from jaxenvs.robots.cartpole import Cartpole, CartpoleRanges
@@ -290,3 +291,36 @@ def test_reacher_fingertip_matches_mujoco_site():
         mujoco.mj_kinematics(m, d)
         tip = robot.fingertip(jnp.asarray(q, jnp.float32))
         np.testing.assert_allclose(tip, d.site_xpos[robot.tip_site, :2], atol=2e-6)
+
+
+@pytest.mark.parametrize("env_id", jaxenvs.list_envs())
+def test_task_observation_is_a_function_of_readings_from_elsewhere(env_id):
+    """Each task's observation, given host (numpy) readings and its own state, is the
+    observation its env returns: what a loop driving a real robot feeds it."""
+    env = jaxenvs.make(env_id, physics="c")
+    state = jax.jit(env.reset)(jax.random.key(0))
+    readings = {k: np.asarray(v) for k, v in env.robot.sense(state.data).items()}
+    assert set(readings) == set(env.robot.sensors) - {
+        n for n, s in env.robot.sensors.items() if not s.from_state
+    }
+    task = env.task_state(state.data, state.extras)
+    np.testing.assert_allclose(env.observation(readings, task), state.obs, atol=1e-6)
+
+
+@pytest.mark.full  # an MJX compile of the walker
+def test_mjx_fills_sensordata_when_asked():
+    robot = Hexapod(sensordata=True)
+    sim = robot.make_sim(0.01, 5)
+    qpos = robot.qpos(jnp.array([0.0, 0.0, 0.14]), jnp.array([1.0, 0.0, 0.0, 0.0]), jnp.zeros(18))
+    ctrl = robot.command(jnp.full(18, 0.3))
+    out = jax.jit(sim.step)(sim.mx, sim.init_data(qpos=qpos, qvel=jnp.zeros(24)), ctrl)
+    m = sim.physics_mj_model
+    d = mujoco.MjData(m)
+    d.qpos[:] = np.asarray(qpos, np.float64)
+    d.ctrl[:] = np.asarray(ctrl, np.float64)
+    for _ in range(5):
+        mujoco.mj_step(m, d)
+    accel = robot.sensors["imu_accel"]
+    want = d.sensordata[accel.adr : accel.adr + 3]
+    np.testing.assert_allclose(robot.sense(out)["imu_accel"], want, rtol=1e-3, atol=1e-3)
+    assert np.linalg.norm(want) > 1.0

@@ -27,8 +27,10 @@ sensor has after ``mj_forward`` at that state (``tests/test_robots.py`` checks i
 every robot on random states). Every other sensor (``accelerometer``, forces, touch) is
 read from ``sensordata`` and is ONE SUBSTEP OLD; it is available only from a robot built
 with ``sensordata=True``, whose Sim has MuJoCo evaluate the MJCF's sensors. Otherwise the
-Sim sets ``mjDSBL_SENSOR``: evaluating them in every substep costs throughput
-(benchmarks/NOTES.md), and nothing a task reads needs it.
+Sim sets ``mjDSBL_SENSOR``: MJX and MuJoCo C evaluate every MJCF sensor in each physics
+substep (the accelerometer with an extra RNE pass), which cost the walker 6-11 % of its MJX
+step throughput and 4-8 % of MuJoCo C's step time (2-core machine, 128 envs, sensors on vs
+off, interleaved repeats, median and minimum), and no shipped task reads ``sensordata``.
 
 Everything on device is ``jax.numpy`` over ``data`` fields: traceable, vmappable, the same
 under MJX and the C engine.
