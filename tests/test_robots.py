@@ -140,6 +140,16 @@ def test_c_engine_fills_sensordata_one_substep_old():
     np.testing.assert_array_equal(qout.qpos, out.qpos)  # sensors do not change the physics
 
 
+def test_limits_are_the_mjcf_ones():
+    hexapod, cartpole = Hexapod(), Cartpole()
+    low, high = hexapod.force_range
+    np.testing.assert_array_equal(high, np.full(18, 2.0))  # servo stall torque (N m)
+    np.testing.assert_array_equal(low, np.full(18, -2.0))
+    assert np.all(np.isinf(cartpole.force_range[1]))
+    assert all(j.range is None for j in hexapod.joints.values())  # the servo range limits
+    assert all(j.range is None for j in cartpole.joints.values())
+
+
 def test_hexapod_command_map_spans_each_joint_range():
     for robot, n in ((Hexapod(), 18), (HexapodLeg(), 3)):
         low, high = robot.command_range

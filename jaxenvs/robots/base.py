@@ -74,12 +74,14 @@ class Joint:
       qpos: address of its first coordinate in ``qpos``.
       qvel: address of its first degree of freedom in ``qvel``.
       kind: ``"free"``, ``"ball"``, ``"slide"`` or ``"hinge"``.
+      range: ``(low, high)`` of a limited joint (rad or m), ``None`` if unlimited.
     """
 
     name: str
     qpos: int
     qvel: int
     kind: str
+    range: tuple[float, float] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,6 +171,7 @@ class Robot:
                 int(m.jnt_qposadr[i]),
                 int(m.jnt_dofadr[i]),
                 kinds[int(m.jnt_type[i])],
+                (float(m.jnt_range[i, 0]), float(m.jnt_range[i, 1])) if m.jnt_limited[i] else None,
             )
             for i in range(m.njnt)
         }
@@ -200,6 +203,8 @@ class Robot:
         if not name:
             raise ValueError(f"{self.xml.name}: sensor {i} ({kind}) has no name")
         obj = int(m.sensor_objid[i])
+        if kind in STATE_SENSORS and m.sensor_cutoff[i] > 0:
+            raise ValueError(f"{self.xml.name}: sensor {name!r}: a cutoff is not evaluated")
         joint = None
         if kind in ("jointpos", "jointvel"):
             joint = _name(m, _OBJ.mjOBJ_JOINT, obj)
@@ -222,11 +227,7 @@ class Robot:
         with no reference frame: then its value is a function of that joint's qpos/qvel."""
         m = self.model
         site = int(m.sensor_objid[i])
-        ok = int(m.sensor_objtype[i]) == _OBJ.mjOBJ_SITE and int(m.sensor_reftype[i]) in (
-            0,
-            int(_OBJ.mjOBJ_UNKNOWN),
-        )
-        ok = ok and int(m.sensor_refid[i]) == -1
+        ok = int(m.sensor_objtype[i]) == _OBJ.mjOBJ_SITE and int(m.sensor_refid[i]) == -1
         if ok:
             body = int(m.site_bodyid[site])
             first = int(m.body_jntadr[body])
@@ -280,6 +281,14 @@ class Robot:
         return dict(fields)
 
     # ---------------------------------------------------------------- commands
+    @property
+    def force_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each actuator's force (or torque) limits, -inf/inf where it has none."""
+        m = self.model
+        low, high = np.asarray(m.actuator_forcerange, np.float64).T
+        limited = np.asarray(m.actuator_forcelimited, bool)
+        return np.where(limited, low, -np.inf), np.where(limited, high, np.inf)
+
     @property
     def command_range(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``ctrl`` of actions -1 and +1 (float32, one entry per actuator)."""
