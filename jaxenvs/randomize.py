@@ -1,8 +1,11 @@
-"""Sampling helpers for domain randomisation, shared by every task's ``sample_params``.
+"""Sampling helpers for domain randomisation, shared by every robot's ``sample_fields``
+(:mod:`jaxenvs.robots.base`) and every task's ``sample_params``.
 
 A task's params pytree carries the physical quantities worth randomising (MJX model
-fields such as ``body_mass`` or ``actuator_gear``, plus task quantities such as a target
-range). Its config holds one *range* per randomised quantity, a ``(low, high)`` pair:
+fields such as ``body_mass`` or ``actuator_gear``, which its robot names and draws, plus
+task quantities such as a target range). Its config holds one *range* per randomised
+quantity, a ``(low, high)`` pair (the robot's ranges come from the robot's
+``Randomization`` config, which the task config inherits):
 
 * a **scale range** multiplies the default value by a factor drawn uniformly in
   ``[low, high]`` (``(1.0, 1.0)`` switches that quantity's randomisation off);
