@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import signal
 import sys
 import threading
@@ -54,6 +55,9 @@ from jaxenvs.agents.run_config import (
 )
 
 PyTree = Any
+
+#: the files a run writes (atomically) in its directory
+RUN_FILES = (CONFIG_FILE, PROGRESS_FILE, SUMMARY_FILE, CHECKPOINT_FILE, CURVE_FILE, VIDEO_FILE)
 
 
 class RunState(NamedTuple):
@@ -271,20 +275,50 @@ def train(
       devices: split each seed's env batch over the first N devices (``None``: all);
         ``num_envs`` must divide evenly.
 
+    The run claims ``out_dir`` for its whole life (:func:`jaxenvs.files.claim_directory`):
+    while another process holds it, :class:`jaxenvs.files.DirectoryBusy` is raised at
+    once; a fresh run (not ``resume``) into a directory that holds a checkpoint raises
+    ``FileExistsError``. Under the claim, temporary files an earlier, killed run left
+    are removed.
+
     Ctrl-C waits for the chunk in flight (a compiled program cannot be stopped part
     way), commits it (progress.csv, checkpoint), writes the results so far, says how to
     resume and raises ``KeyboardInterrupt``. A second Ctrl-C stops at once, discarding
-    the chunk in flight: the checkpoint on disk stays the last committed chunk's.
+    the chunk in flight: the checkpoint on disk stays the last committed chunk's. A
+    Ctrl-C before the first checkpoint (while compiling) saves nothing; the notice says
+    there is nothing to resume.
     """
     clock = _Clock(time.perf_counter(), time.process_time())
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    run = _prepare(resolved, out, devices, say)
-    if resume:
-        rs, clock = _resume(run, clock)
-    else:
-        rs = _start(run, clock)
+    with files.claim_directory(out, _owner(resolved, resume)):
+        if not resume and (out / CHECKPOINT_FILE).exists():
+            raise FileExistsError(f"{out} already holds a run; use --resume {out} or another --out")
+        files.remove_temporaries(out, RUN_FILES)
+        try:
+            run = _prepare(resolved, out, devices, say)
+            rs, clock = _resume(run, clock) if resume else (_start(run, clock), clock)
+        except KeyboardInterrupt:
+            if not resume:
+                say(f"interrupted before the first checkpoint: nothing to resume in {out}")
+            raise
+        return _loop(run, clock, rs, quiet, max_chunks)
+
+
+def _owner(resolved: ResolvedConfig, resume: bool) -> str:
+    """Who holds a run directory's claim, as the message of a refused second run says."""
+    what = "resuming" if resume else "training"
+    return (
+        f"another run (pid {os.getpid()}, {what} {resolved.algo} on {resolved.env_id} "
+        f"since {time.strftime('%Y-%m-%d %H:%M:%S')})"
+    )
+
+
+def _loop(
+    run: _Run, clock: _Clock, rs: RunState, quiet: bool, max_chunks: int | None
+) -> dict[str, Any]:
+    """The chunks from ``rs`` on, then the results (see :func:`train`)."""
+    out, say, resolved = run.out, run.say, run.resolved
     num_chunks, steps = run.trainer.num_chunks, run.trainer.steps_per_chunk
     stop = num_chunks if max_chunks is None else min(num_chunks, rs.chunk + max_chunks)
     bar = ProgressBar(

@@ -97,7 +97,9 @@ def run(args: argparse.Namespace) -> int:
         summary = loop.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
     except KeyboardInterrupt:
         if args.quiet:  # the runner's notice was silenced; the way on is not
-            print(f"continue with: jaxenvs train --resume {out}", file=sys.stderr)
+            saved = (out / run_config.CHECKPOINT_FILE).is_file()
+            way_on = f"continue with: jaxenvs train --resume {out}"
+            print(way_on if saved else "nothing was saved: start the run again", file=sys.stderr)
         raise
     line = (
         f"{resolved.algo} on {resolved.env_id}: eval return {summary['eval_mean_return']:.1f} "
