@@ -116,6 +116,13 @@ def _prepare(
     resolved = engine_resolved(resolved)
     programs = build_programs(resolved, devices)
     say(machine.describe(programs.env))
+    per_chunk, chunks = programs.trainer.steps_per_chunk, programs.trainer.num_chunks
+    asked = getattr(resolved.agent, "total_steps", None)
+    if asked is not None and asked != per_chunk * chunks:
+        say(
+            f"total_steps {asked} rounds up to whole chunks: {per_chunk * chunks} env steps "
+            f"per seed ({chunks} chunks of {per_chunk})"
+        )
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     params_fn = jax.vmap(programs.trainer.policy_params)
     template = jax.eval_shape(programs.init_fn, keys)

@@ -63,7 +63,8 @@ class TabularConfig:
         :data:`MAX_TABLE_ENTRIES` (2**24, 64 MiB per seed).
       obs_low, obs_high: the discretiser's bounds, one value per observation dimension.
       num_envs: envs stepping together and updating the one shared table.
-      total_steps: training budget in env steps (over all envs) per seed.
+      total_steps: training budget in env steps (over all envs) per seed, rounded up to
+        whole chunks (a run never trains less than asked).
       chunk_steps: steps per env in one compiled chunk (progress/checkpoint granularity).
       episodes_per_env: if > 0, each env stops learning after this many episodes (the
         course's ``nepisodes`` with one env); training ends once every env is done or
