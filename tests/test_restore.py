@@ -10,6 +10,7 @@ import pytest
 
 from jaxenvs import cli
 from jaxenvs.agents import runner
+from jaxenvs.agents.checkpoint import CheckpointError
 
 TINY = {
     "qlearning": {"num_envs": 4, "chunk_steps": 100, "total_steps": 400},
@@ -73,3 +74,12 @@ def test_eval_and_render_under_the_other_engine(
     argv = ["render", "CartPole-v0", "--policy", str(run), "--out", str(video)]
     assert cli.main([*argv, "--physics", other, "--steps", "10"]) == 0
     assert video.stat().st_size > 0
+
+
+@pytest.mark.full
+def test_a_resume_under_another_engine_names_the_engine(tmp_path_factory, tmp_path):
+    run = _train(tmp_path_factory, "qlearning", "c")
+    config = (run / runner.CONFIG_FILE).read_text()
+    (run / runner.CONFIG_FILE).write_text(config.replace("physics: c", "physics: mjx"))
+    with pytest.raises(CheckpointError, match=r"config\.env\.physics is 'c' .* but 'mjx'"):
+        runner.train(runner.load_run_config(run), run, resume=True, quiet=True)

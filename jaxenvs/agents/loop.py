@@ -168,11 +168,16 @@ def _start(run: _Run, clock: _Clock) -> RunState:
 def _resume(run: _Run, clock: _Clock) -> tuple[RunState, _Clock]:
     """The committed state of the checkpoint, progress.csv's rows up to it, and the clock
     counting the seconds already spent."""
-    state, meta = checkpoint.load(run.out / CHECKPOINT_FILE, run.template)
-    expected = _identity(run)
-    checkpoint.check_matches(
-        run.out / CHECKPOINT_FILE, {k: meta.get(k) for k in expected}, expected
-    )
+    path, expected = run.out / CHECKPOINT_FILE, _identity(run)
+    try:
+        state, meta = checkpoint.load(path, run.template)
+    except checkpoint.CheckpointError:
+        # a state of another shape: say which setting differs (the engine, say) if the
+        # record tells, else why the file does not fit
+        meta = checkpoint.read(path)[1]["metadata"]
+        checkpoint.check_matches(path, {k: meta.get(k) for k in expected}, expected)
+        raise
+    checkpoint.check_matches(path, {k: meta.get(k) for k in expected}, expected)
     start = int(meta["chunk"])
     clock = dataclasses.replace(
         clock,
