@@ -27,7 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="base seed (default 0)")
     parser.add_argument("--num-seeds", type=int, help="independent seeds trained together")
     parser.add_argument("--num-envs", type=int, help="parallel envs per seed")
-    parser.add_argument("--total-steps", type=int, help="env steps per seed")
+    parser.add_argument(
+        "--total-steps", type=int, help="env steps per seed (rounded up to whole chunks)"
+    )
     parser.add_argument("--eval-episodes", type=int, help="greedy episodes per seed at the end")
     parser.add_argument(
         "--devices",
