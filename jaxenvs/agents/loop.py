@@ -5,7 +5,9 @@ one jitted ``vmap(chunk)`` (:mod:`jaxenvs.agents.programs`). Each chunk commits
 progress.csv and the checkpoint before the loop moves on, and a chunk is a pure function
 of the runner state, so resuming from the checkpoint after chunk ``i`` gives the same
 final state as a run that never stopped. A checkpoint records what it is a run of
-(:func:`_identity`); a resume refuses one that does not match.
+(:func:`_identity`); a resume refuses one that does not match. A run holds its directory
+(:func:`jaxenvs.files.claim_directory`) from before its first file to its last, so two
+runs never mix their files in one.
 """
 
 from __future__ import annotations
