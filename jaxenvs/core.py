@@ -76,6 +76,33 @@ STANDARD_INFO_KEYS = (
 )
 
 
+def check_key(key: Any, where: str) -> None:
+    """TypeError/ValueError (at trace time) unless ``key`` is ONE PRNG key: a typed key
+    of shape ``()`` or a raw ``uint32`` key (one axis)."""
+    dtype, shape = getattr(key, "dtype", None), getattr(key, "shape", None)
+    typed = dtype is not None and jax.dtypes.issubdtype(dtype, jax.dtypes.prng_key)
+    if not typed and (dtype != np.uint32 or not shape):
+        got = type(key).__name__ + ("" if dtype is None else f" of {dtype}{list(shape or ())}")
+        raise TypeError(f"{where}: expected a PRNG key (jax.random.key(seed)), got {got}")
+    if (typed and shape != ()) or (not typed and len(shape or ()) != 1):
+        raise ValueError(
+            f"{where}: expected one PRNG key, got a key array of shape {shape}; a batch of "
+            "keys goes to jax.vmap or a BatchedEnv"
+        )
+
+
+def check_state(state: Any, batch: tuple[int, ...], where: str) -> None:
+    """TypeError/ValueError (at trace time) unless ``state`` is a :class:`State` of
+    ``batch`` envs (``()``: one env)."""
+    if not isinstance(state, State):
+        raise TypeError(f"{where}: expected a State, got {type(state).__name__}")
+    shape = tuple(jnp.shape(state.time))
+    if shape != batch:
+        one = "one env's state" if not batch else f"a state of {batch[0]} envs"
+        got = f"a batch of {shape[0]} envs" if shape else "one env's state"
+        raise ValueError(f"{where}: expected {one}, got {got} (state.time has shape {shape})")
+
+
 class NoExtras(struct.PyTreeNode):
     """The ``extras`` of a task that keeps no state of its own (no leaves)."""
 
@@ -270,6 +297,7 @@ class Env(abc.ABC, Generic[ConfigT]):
     # ----------------------------------------------------------------- public API
     def reset(self, key: jax.Array, params: Params = None) -> State:
         """Start an episode from the task's initial-state distribution."""
+        check_key(key, f"{type(self).__name__}.reset")
         params = self.default_params if params is None else params
         key, init_key, obs_key = jax.random.split(key, 3)
         data, extras = self._init(init_key, params)
@@ -305,6 +333,7 @@ class Env(abc.ABC, Generic[ConfigT]):
         sanitised on device: NaN/inf entries become 0 (counted in ``info["nan_actions"]``),
         continuous actions are clipped to [-1, 1], discrete ones into range.
         """
+        check_state(state, (), f"{type(self).__name__}.step")
         if params is None:
             params = self.default_params if state.params is None else state.params
         action, nan_count = self.sanitize_action(action)
@@ -449,6 +478,7 @@ class BatchedEnv:
 
     def reset(self, key: jax.Array, params: Params = None) -> State:
         """Reset all envs; returns a State with a leading ``num_envs`` axis."""
+        check_key(key, f"batched {type(self.env).__name__}.reset")
         keys = jax.random.split(key, self.num_envs)
         if self.mesh is None:
             return self._reset_batch(keys, params)
@@ -458,6 +488,7 @@ class BatchedEnv:
 
     def step(self, state: State, action: jax.Array, params: Params = None) -> State:
         """Step every env, then reset the finished ones (fresh random starts)."""
+        check_state(state, (self.num_envs,), f"batched {type(self.env).__name__}.step")
         action = jnp.asarray(action)
         expected = (self.num_envs, *self.env.action_shape)
         if action.shape != expected:

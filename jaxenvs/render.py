@@ -18,11 +18,14 @@ points MuJoCo's context class at the first one that works. When none works it ra
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import importlib
 import os
+import re
 import subprocess
 import sys
+import tempfile
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -312,11 +315,28 @@ def check_video_path(path: str | os.PathLike[str]) -> Path:
     return path
 
 
+class VideoError(OSError):
+    """The encoder could not write a video (its own error line says why)."""
+
+
+def check_video_size(path: str | os.PathLike[str], width: int, height: int) -> None:
+    """ValueError unless frames of ``width`` x ``height`` can be encoded to ``path``: an
+    .mp4 (H.264 in yuv420p, what every player plays) needs both even."""
+    if Path(path).suffix.lower() == ".mp4" and (width % 2 or height % 2):
+        raise ValueError(
+            f"an .mp4 video needs an even width and height (H.264, yuv420p); got {width}x{height}"
+        )
+
+
 def write_video(frames: Any, path: str | os.PathLike[str], fps: float = 30.0) -> Path:
     """Write ``frames`` (``(T, H, W, 3)`` uint8) to ``path`` (.mp4 via ffmpeg, or .gif).
 
-    The file appears atomically: it is written next to ``path`` under a temporary name and
-    renamed into place, so a reader never sees a half-written video.
+    The file appears atomically and only when the encoder succeeded: it is written next
+    to ``path`` under a temporary name and renamed into place once ffmpeg has exited
+    with status 0, so a reader never sees a half-written video and a failed write
+    leaves ``path`` as it was. A failing encoder (a full disk, a size it refuses) raises
+    :class:`VideoError` naming ``path`` with ffmpeg's first error line (the cause). An .mp4 needs an
+    even frame width and height (:func:`check_video_size`).
     """
     import imageio.v2 as imageio
 
@@ -328,23 +348,67 @@ def write_video(frames: Any, path: str | os.PathLike[str], fps: float = 30.0) ->
         raise ValueError(f"expected uint8 frames, got {frames.dtype}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
-    with files.atomic_path(path) as tmp, warnings.catch_warnings():
-        # JAX's notice about fork(); imageio-ffmpeg forks only to exec ffmpeg.
-        warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
-        _mimwrite(imageio, str(tmp), frames, path.suffix.lower(), fps)
+    check_video_size(path, frames.shape[2], frames.shape[1])
+    try:
+        with files.atomic_path(path) as tmp:
+            _mimwrite(imageio, str(tmp), frames, path.suffix.lower(), fps)
+    except VideoError as err:
+        raise VideoError(f"cannot write {path}: {err}") from None
     return path
 
 
 def _mimwrite(imageio: Any, tmp: str, frames: np.ndarray, suffix: str, fps: float) -> None:
     if suffix == ".mp4":
-        kwargs: dict[str, Any] = {"fps": fps, "codec": "libx264", "macro_block_size": 1}
-        kwargs["ffmpeg_log_level"] = "error"
-        kwargs["output_params"] = ["-pix_fmt", "yuv420p"] if _even(frames) else []
-        imageio.mimwrite(tmp, list(frames), format="FFMPEG", **kwargs)
+        _encode_mp4(tmp, frames, fps)
     else:
         imageio.mimwrite(tmp, list(frames), format="GIF", duration=1000.0 / fps, loop=0)
 
 
-def _even(frames: np.ndarray) -> bool:
-    """yuv420p (playable everywhere) needs even frame sizes."""
-    return frames.shape[1] % 2 == 0 and frames.shape[2] % 2 == 0
+def ffmpeg_command(path: str, width: int, height: int, fps: float) -> list[str]:
+    """The ffmpeg command that reads raw RGB frames on stdin and writes H.264 to ``path``."""
+    import imageio_ffmpeg
+
+    raw = ["-f", "rawvideo", "-pix_fmt", "rgb24", "-s", f"{width}x{height}"]
+    out = ["-an", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-f", "mp4"]
+    exe = imageio_ffmpeg.get_ffmpeg_exe()
+    return [exe, "-y", "-v", "error", *raw, "-r", f"{fps:.6g}", "-i", "-", *out, path]
+
+
+def _encode_mp4(path: str, frames: np.ndarray, fps: float) -> None:
+    """Pipe ``frames`` through ffmpeg into ``path``; :class:`VideoError` with ffmpeg's
+    first error line unless it exits with status 0 having read every frame."""
+    with tempfile.TemporaryFile() as log, warnings.catch_warnings():
+        # JAX's notice about fork(); the encoder (and its probe for a working ffmpeg) is a
+        # plain exec
+        warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
+        cmd = ffmpeg_command(path, frames.shape[2], frames.shape[1], fps)
+        proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log)
+        assert proc.stdin is not None
+        broken = False
+        try:
+            try:
+                for frame in frames:
+                    proc.stdin.write(np.ascontiguousarray(frame).tobytes())
+            except BrokenPipeError:  # ffmpeg quit early: its exit status and log say why
+                broken = True
+            with contextlib.suppress(BrokenPipeError):
+                proc.stdin.close()
+            status = proc.wait()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        if status != 0 or broken:
+            log.seek(0)
+            reason = first_error(log.read().decode(errors="replace"))
+            raise VideoError(f"ffmpeg failed (exit status {status}): {reason}")
+
+
+def first_error(log: str) -> str:
+    """The first line of an ffmpeg error log (its cause; later lines are consequences),
+    without the ``[component @ 0x...]`` prefixes."""
+    for line in log.splitlines():
+        line = re.sub(r"^(\[[^]]*\]\s*)+", "", line).strip()
+        if line:
+            return line
+    return "it stopped reading frames without a message"

@@ -5,13 +5,16 @@ one jitted ``vmap(chunk)`` (:mod:`jaxenvs.agents.programs`). Each chunk commits
 progress.csv and the checkpoint before the loop moves on, and a chunk is a pure function
 of the runner state, so resuming from the checkpoint after chunk ``i`` gives the same
 final state as a run that never stopped. A checkpoint records what it is a run of
-(:func:`_identity`); a resume refuses one that does not match.
+(:func:`_identity`); a resume refuses one that does not match. A run holds its directory
+(:func:`jaxenvs.files.claim_directory`) from before its first file to its last, so two
+runs never mix their files in one.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import signal
 import sys
 import threading
@@ -54,6 +57,9 @@ from jaxenvs.agents.run_config import (
 )
 
 PyTree = Any
+
+#: the files a run writes (atomically) in its directory
+RUN_FILES = (CONFIG_FILE, PROGRESS_FILE, SUMMARY_FILE, CHECKPOINT_FILE, CURVE_FILE, VIDEO_FILE)
 
 
 class RunState(NamedTuple):
@@ -112,6 +118,13 @@ def _prepare(
     resolved = engine_resolved(resolved)
     programs = build_programs(resolved, devices)
     say(machine.describe(programs.env))
+    per_chunk, chunks = programs.trainer.steps_per_chunk, programs.trainer.num_chunks
+    asked = getattr(resolved.agent, "total_steps", None)
+    if asked is not None and asked != per_chunk * chunks:
+        say(
+            f"total_steps {asked} rounds up to whole chunks: {per_chunk * chunks} env steps "
+            f"per seed ({chunks} chunks of {per_chunk})"
+        )
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     params_fn = jax.vmap(programs.trainer.policy_params)
     template = jax.eval_shape(programs.init_fn, keys)
@@ -157,11 +170,16 @@ def _start(run: _Run, clock: _Clock) -> RunState:
 def _resume(run: _Run, clock: _Clock) -> tuple[RunState, _Clock]:
     """The committed state of the checkpoint, progress.csv's rows up to it, and the clock
     counting the seconds already spent."""
-    state, meta = checkpoint.load(run.out / CHECKPOINT_FILE, run.template)
-    expected = _identity(run)
-    checkpoint.check_matches(
-        run.out / CHECKPOINT_FILE, {k: meta.get(k) for k in expected}, expected
-    )
+    path, expected = run.out / CHECKPOINT_FILE, _identity(run)
+    try:
+        state, meta = checkpoint.load(path, run.template)
+    except checkpoint.CheckpointError:
+        # a state of another shape: say which setting differs (the engine, say) if the
+        # record tells, else why the file does not fit
+        meta = checkpoint.read(path)[1]["metadata"]
+        checkpoint.check_matches(path, {k: meta.get(k) for k in expected}, expected)
+        raise
+    checkpoint.check_matches(path, {k: meta.get(k) for k in expected}, expected)
     start = int(meta["chunk"])
     clock = dataclasses.replace(
         clock,
@@ -271,20 +289,50 @@ def train(
       devices: split each seed's env batch over the first N devices (``None``: all);
         ``num_envs`` must divide evenly.
 
+    The run claims ``out_dir`` for its whole life (:func:`jaxenvs.files.claim_directory`):
+    while another process holds it, :class:`jaxenvs.files.DirectoryBusy` is raised at
+    once; a fresh run (not ``resume``) into a directory that holds a checkpoint raises
+    ``FileExistsError``. Under the claim, temporary files an earlier, killed run left
+    are removed.
+
     Ctrl-C waits for the chunk in flight (a compiled program cannot be stopped part
     way), commits it (progress.csv, checkpoint), writes the results so far, says how to
     resume and raises ``KeyboardInterrupt``. A second Ctrl-C stops at once, discarding
-    the chunk in flight: the checkpoint on disk stays the last committed chunk's.
+    the chunk in flight: the checkpoint on disk stays the last committed chunk's. A
+    Ctrl-C before the first checkpoint (while compiling) saves nothing; the notice says
+    there is nothing to resume.
     """
     clock = _Clock(time.perf_counter(), time.process_time())
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    run = _prepare(resolved, out, devices, say)
-    if resume:
-        rs, clock = _resume(run, clock)
-    else:
-        rs = _start(run, clock)
+    with files.claim_directory(out, _owner(resolved, resume)):
+        if not resume and (out / CHECKPOINT_FILE).exists():
+            raise FileExistsError(f"{out} already holds a run; use --resume {out} or another --out")
+        files.remove_temporaries(out, RUN_FILES)
+        try:
+            run = _prepare(resolved, out, devices, say)
+            rs, clock = _resume(run, clock) if resume else (_start(run, clock), clock)
+        except KeyboardInterrupt:
+            if not resume:
+                say(f"interrupted before the first checkpoint: nothing to resume in {out}")
+            raise
+        return _loop(run, clock, rs, quiet, max_chunks)
+
+
+def _owner(resolved: ResolvedConfig, resume: bool) -> str:
+    """Who holds a run directory's claim, as the message of a refused second run says."""
+    what = "resuming" if resume else "training"
+    return (
+        f"another run (pid {os.getpid()}, {what} {resolved.algo} on {resolved.env_id} "
+        f"since {time.strftime('%Y-%m-%d %H:%M:%S')})"
+    )
+
+
+def _loop(
+    run: _Run, clock: _Clock, rs: RunState, quiet: bool, max_chunks: int | None
+) -> dict[str, Any]:
+    """The chunks from ``rs`` on, then the results (see :func:`train`)."""
+    out, say, resolved = run.out, run.say, run.resolved
     num_chunks, steps = run.trainer.num_chunks, run.trainer.steps_per_chunk
     stop = num_chunks if max_chunks is None else min(num_chunks, rs.chunk + max_chunks)
     bar = ProgressBar(

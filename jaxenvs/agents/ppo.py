@@ -54,7 +54,8 @@ class PPOConfig:
     """PPO hyperparameters.
 
     Attributes:
-      total_steps: env steps to train for (rounded down to whole chunks, at least one).
+      total_steps: env steps to train for, rounded up to whole chunks (a run never
+        trains less than asked).
       num_envs: parallel envs per seed.
       num_steps: rollout length per env per update.
       updates_per_chunk: PPO iterations per chunk (progress/checkpoint granularity).
@@ -136,7 +137,7 @@ class PPOConfig:
 
     @property
     def num_chunks(self) -> int:
-        return max(1, self.total_steps // self.steps_per_chunk)
+        return max(1, -(-self.total_steps // self.steps_per_chunk))
 
 
 #: the config the runner builds when no file is given (``--algo ppo``).

@@ -30,7 +30,14 @@ import jax.numpy as jnp
 
 from jaxenvs import registry
 from jaxenvs.agents.base import Trainer
-from jaxenvs.config import ConfigError, apply_overrides, config_to_dict, load_yaml, require
+from jaxenvs.config import (
+    ConfigError,
+    apply_overrides,
+    config_to_dict,
+    load_yaml,
+    name_some,
+    require,
+)
 from jaxenvs.core import Env
 from jaxenvs.physics import with_engine
 
@@ -129,7 +136,9 @@ def algorithm(name: str) -> tuple[type, Callable[[Env, Any], Trainer]]:
 def _section(data: Mapping[str, Any], name: str, source: str) -> dict[str, Any]:
     value = data.get(name) or {}
     if not isinstance(value, dict):
-        raise ConfigError(f"{source}: section {name!r} must be a mapping, got {value!r}")
+        raise ConfigError(
+            f"{source}: section {name!r} must be a mapping, got a {type(value).__name__}"
+        )
     return dict(value)
 
 
@@ -155,10 +164,10 @@ def resolve_config(
     file_src = str(config_file) if config_file is not None else source
     if config_file is not None:
         data = load_yaml(config_file)
-        unknown = sorted(set(data) - set(SECTIONS))
+        unknown = sorted(set(data) - set(SECTIONS), key=str)
         if unknown:
             raise ConfigError(
-                f"{file_src}: unknown section(s) {', '.join(map(repr, unknown))}; "
+                f"{file_src}: unknown section(s) {name_some(unknown)}; "
                 f"valid sections: {', '.join(SECTIONS)}"
             )
     env_section = _section(data, "env", file_src)

@@ -33,7 +33,7 @@ from __future__ import annotations
 from jaxenvs.agents.evaluation import eval_key, make_evaluator
 from jaxenvs.agents.loop import RunState, train
 from jaxenvs.agents.programs import Programs, build_programs, program_store
-from jaxenvs.agents.restore import evaluate_run, load_policy, restore
+from jaxenvs.agents.restore import evaluate_run, load_policy, restore, restore_policy
 from jaxenvs.agents.results import (
     VIDEO_FPS,
     VIDEO_SIZE,
@@ -95,6 +95,7 @@ __all__ = [
     "read_progress",
     "resolve_config",
     "restore",
+    "restore_policy",
     "seed_keys",
     "shipped_config",
     "train",

@@ -42,6 +42,10 @@ from jaxenvs.core import BatchedEnv, Env, State
 #: number of longest episode lengths a chunk reports (for the course's best-100 score)
 TOP_K = 100
 
+#: the most entries (states x actions) a Q-table may have: 2**24, 64 MiB of float32 per
+#: seed (every step also touches the whole table once)
+MAX_TABLE_ENTRIES = 2**24
+
 
 @dataclasses.dataclass(frozen=True)
 class TabularConfig:
@@ -54,10 +58,13 @@ class TabularConfig:
       epsilon_discount: epsilon is multiplied by this once per episode (per env).
       epsilon_min: the floor of the epsilon schedule.
       number_splits: bins per observation dimension; one integer for all dimensions or a
-        list with one entry per dimension (1 ignores that dimension).
+        list with one entry per dimension (1 ignores that dimension). The table has
+        their product of states times the task's actions entries, at most
+        :data:`MAX_TABLE_ENTRIES` (2**24, 64 MiB per seed).
       obs_low, obs_high: the discretiser's bounds, one value per observation dimension.
       num_envs: envs stepping together and updating the one shared table.
-      total_steps: training budget in env steps (over all envs) per seed.
+      total_steps: training budget in env steps (over all envs) per seed, rounded up to
+        whole chunks (a run never trains less than asked).
       chunk_steps: steps per env in one compiled chunk (progress/checkpoint granularity).
       episodes_per_env: if > 0, each env stops learning after this many episodes (the
         course's ``nepisodes`` with one env); training ends once every env is done or
@@ -88,6 +95,8 @@ class TabularConfig:
         )
         require(len(splits) > 0, "number_splits", "must not be empty")
         require(all(n >= 1 for n in splits), "number_splits", "must be >= 1")
+        if not isinstance(self.number_splits, int):
+            check_table_size(math.prod(splits), None)
         for name in ("obs_low", "obs_high"):
             value = getattr(self, name)
             require(value is None or len(value) > 0, name, "must not be empty")
@@ -112,6 +121,25 @@ class QLearningConfig(TabularConfig):
 @dataclasses.dataclass(frozen=True)
 class SarsaConfig(TabularConfig):
     """SARSA (on-policy: bootstraps from the action actually taken next)."""
+
+
+def check_table_size(num_states: int, num_actions: int | None) -> None:
+    """ConfigError naming ``number_splits`` unless a table of ``num_states`` x
+    ``num_actions`` entries (at least ``num_states`` when the actions are not known yet)
+    is within :data:`MAX_TABLE_ENTRIES`."""
+    entries = num_states * (num_actions or 1)
+    if entries <= MAX_TABLE_ENTRIES:
+        return
+    limit = f"the limit is {MAX_TABLE_ENTRIES} entries ({MAX_TABLE_ENTRIES * 4 // 2**20} MiB)"
+    if num_actions is None:
+        raise ConfigError(
+            f"key 'number_splits' gives {num_states} states, more Q-table entries than "
+            f"allowed per seed: {limit}"
+        )
+    raise ConfigError(
+        f"key 'number_splits' gives a Q-table of {num_states} states x {num_actions} "
+        f"actions = {entries} entries ({entries * 4 / 2**20:.0f} MiB per seed); {limit}"
+    )
 
 
 class Discretiser(NamedTuple):
@@ -289,6 +317,9 @@ def _check_env(env: Env, config: TabularConfig) -> tuple[tuple[float, ...], tupl
             f"key 'number_splits' has {len(splits)} values but the observation has "
             f"{env.observation_size} dimensions"
         )
+    dims = env.observation_size
+    per_dim = (splits,) * dims if isinstance(splits, int) else splits
+    check_table_size(math.prod(per_dim), env.action_size)
     return config.obs_low, config.obs_high
 
 

@@ -83,6 +83,17 @@ def rollout(env: Any, act_fn: ActFn, steps: int, seed: int) -> Any:
     return jax.jit(run)(jax.random.key(seed))
 
 
+def _check_even_size(args: argparse.Namespace) -> None:
+    """An .mp4 (H.264 in yuv420p) needs an even frame size: refuse an odd flag at once."""
+    from jaxenvs.cli import UserError
+
+    if not args.out.lower().endswith(".mp4"):
+        return
+    for flag, value in (("--width", args.width), ("--height", args.height)):
+        if value % 2:
+            raise UserError(f"{flag} must be even for an .mp4 video (H.264, yuv420p), got {value}")
+
+
 def run(args: argparse.Namespace) -> int:
     import jaxenvs
     from jaxenvs import render
@@ -93,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     checks.int_flag("--height", args.height, 1, 8192)
     checks.float_flag("--fps", args.fps, 1e-3, 1e4)
     render.check_video_path(args.out)
+    _check_even_size(args)
     camera = int(args.camera) if args.camera is not None and args.camera.isdigit() else args.camera
     physics = {} if args.physics is None else {"physics": args.physics}
     env = jaxenvs.make(args.env_id, **physics)

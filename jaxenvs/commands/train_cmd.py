@@ -27,7 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, help="base seed (default 0)")
     parser.add_argument("--num-seeds", type=int, help="independent seeds trained together")
     parser.add_argument("--num-envs", type=int, help="parallel envs per seed")
-    parser.add_argument("--total-steps", type=int, help="env steps per seed")
+    parser.add_argument(
+        "--total-steps", type=int, help="env steps per seed (rounded up to whole chunks)"
+    )
     parser.add_argument("--eval-episodes", type=int, help="greedy episodes per seed at the end")
     parser.add_argument(
         "--devices",
@@ -97,7 +99,9 @@ def run(args: argparse.Namespace) -> int:
         summary = loop.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
     except KeyboardInterrupt:
         if args.quiet:  # the runner's notice was silenced; the way on is not
-            print(f"continue with: jaxenvs train --resume {out}", file=sys.stderr)
+            saved = (out / run_config.CHECKPOINT_FILE).is_file()
+            way_on = f"continue with: jaxenvs train --resume {out}"
+            print(way_on if saved else "nothing was saved: start the run again", file=sys.stderr)
         raise
     line = (
         f"{resolved.algo} on {resolved.env_id}: eval return {summary['eval_mean_return']:.1f} "

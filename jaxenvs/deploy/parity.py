@@ -41,8 +41,8 @@ def jax_policy(run_dir: str | Path, seed: int, physics: str | None = None) -> Ja
     run's engine)."""
     from jaxenvs.agents import restore
 
-    _, env, trainer, state = restore.restore(run_dir, physics)
-    params = jax.tree.map(lambda x: x[seed], jax.vmap(trainer.policy_params)(state))
+    _, env, trainer, params = restore.restore_policy(run_dir, physics)
+    params = jax.tree.map(lambda x: x[seed], params)
     return JaxPolicy(env, lambda obs, key: trainer.act(params, obs, key))
 
 
