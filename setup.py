@@ -1,7 +1,7 @@
-"""Builds jaxenvs' native engine (jaxenvs/native/engine.cc) during `pip install`.
+"""Builds jaxenvs' native engine (jaxenvs/physics/native/engine.cc) during `pip install`.
 
 The metadata lives in pyproject.toml; this file only adds the one C++ extension: an XLA
-FFI handler that steps MuJoCo's C engine (see jaxenvs/native/__init__.py). It is compiled
+FFI handler that steps MuJoCo's C engine (see jaxenvs/physics/native/__init__.py). It is compiled
 against the headers of the jaxlib and mujoco in the build environment (pyproject's
 build-system requires) and linked to that mujoco's libmujoco. The extension is optional:
 where it cannot be built (no C++ compiler), the install goes on and jaxenvs steps the C
@@ -30,7 +30,7 @@ class BuildNative(build_ext):
         if not libs:
             raise RuntimeError(f"no libmujoco shared library in {mujoco_dir}")
         ext.include_dirs = [os.path.join(mujoco_dir, "include")]
-        # the versions it is built against, read back by jaxenvs.native before first use
+        # the versions it is built against, read back by jaxenvs.physics.native before first use
         ext.define_macros = [
             ("JAXENVS_BUILT_JAXLIB", f'"{jaxlib.__version__}"'),
             ("JAXENVS_BUILT_MUJOCO", f'"{mujoco.__version__}"'),
@@ -48,7 +48,7 @@ class BuildNative(build_ext):
             f"-L{mujoco_dir}",
             f"-l:{os.path.basename(libs[-1])}",
             # an installed (non-editable) jaxenvs sits beside mujoco in site-packages
-            "-Wl,-rpath,$ORIGIN/../../mujoco",
+            "-Wl,-rpath,$ORIGIN/../../../mujoco",
         ]
         super().build_extension(ext)
 
@@ -56,8 +56,8 @@ class BuildNative(build_ext):
 setup(
     ext_modules=[
         Extension(
-            "jaxenvs.native._engine",
-            sources=["jaxenvs/native/engine.cc"],
+            "jaxenvs.physics.native._engine",
+            sources=["jaxenvs/physics/native/engine.cc"],
             language="c++",
             optional=True,
         )

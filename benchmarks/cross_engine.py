@@ -18,7 +18,7 @@ from pathlib import Path
 
 import results_io
 
-from jaxenvs.agents import runner
+from jaxenvs.run import runner
 
 
 def main(argv: list[str] | None = None) -> None:

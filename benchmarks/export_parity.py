@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 import results_io
 
-from jaxenvs.agents import runner
 from jaxenvs.deploy import export, parity
 from jaxenvs.deploy.runtime import NumpyPolicy
+from jaxenvs.run import runner
 
 TOL = 1e-5
 SHORT_ENVS, SHORT_UPDATES = 64, 2

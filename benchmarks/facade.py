@@ -26,7 +26,7 @@ import mujoco
 import results_io
 
 import jaxenvs  # noqa: F401  (registers jaxenvs/<id>)
-from jaxenvs import native
+from jaxenvs.physics import native
 
 PEERS = {"CartPole-v0": "CartPole-v1", "Reacher-v0": "Reacher-v5"}
 

@@ -1,4 +1,4 @@
-"""Scale-out: env steps/s and PPO wall time on 1 vs N devices (jaxenvs.sharding).
+"""Scale-out: env steps/s and PPO wall time on 1 vs N devices (jaxenvs.core.sharding).
 
 For each task and each device count, all in one process:
 
@@ -31,10 +31,9 @@ import jax
 import results_io
 
 import jaxenvs
-from jaxenvs import sharding
 from jaxenvs.agents import ppo
-from jaxenvs.agents.placement import shard_trainer_fns
-from jaxenvs.core import BatchedEnv, Env
+from jaxenvs.core import BatchedEnv, Env, sharding
+from jaxenvs.run.placement import shard_trainer_fns
 
 
 def env_throughput(

@@ -50,8 +50,8 @@ import jax.numpy as jnp
 import numpy as np
 import results_io
 
-from jaxenvs.agents import checkpoint, runner
 from jaxenvs.robots.hexapod import quat_to_mat
+from jaxenvs.run import checkpoint, runner
 from jaxenvs.tasks.hexapod import HexapodWalk, WalkConfig
 
 GROUPS = ("default_far", "default_near", "randomized_far", "randomized_near")

@@ -5,8 +5,8 @@ Two mechanisms use the CPU's cores, and both read this module:
 * **MJX on a CPU** runs one XLA program per host device, and one XLA CPU device keeps
   about two cores busy whatever the machine has (benchmarks/RESULTS.md). jaxenvs therefore
   asks XLA for ``cores // 2`` host devices (at least 1) and spreads env batches over them
-  (:mod:`jaxenvs.placement`). On a 2-core machine that is one device.
-* **MuJoCo's C engine** (``physics="c"``, :mod:`jaxenvs.cengine`) steps a batch with a pool
+  (:mod:`jaxenvs.core.placement`). On a 2-core machine that is one device.
+* **MuJoCo's C engine** (``physics="c"``, :mod:`jaxenvs.physics.cengine`) steps a batch with a pool
   of ``cores`` threads.
 
 ``cores`` defaults to the cores this process may run on (``os.sched_getaffinity``).
@@ -28,7 +28,7 @@ from typing import Any
 
 import jax
 
-from jaxenvs import placement
+from jaxenvs.core import placement
 
 _cores: int | None = None
 

@@ -257,7 +257,7 @@ def check_engine_parity(
     Continuous random actions are scaled by ``action_scale``.
 
     The C engine fills only some ``mjx.Data`` fields and leaves the others NaN
-    (:mod:`jaxenvs.cengine`), so a task that reads one of those fails here, naming what
+    (:mod:`jaxenvs.physics.cengine`), so a task that reads one of those fails here, naming what
     differed, instead of silently reading a stale value. Raises :class:`TaskCheckError`.
     """
     from jaxenvs import registry

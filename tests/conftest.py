@@ -32,8 +32,8 @@ import jax
 import pytest
 
 import jaxenvs
-from jaxenvs import compile_cache
 from jaxenvs.core import BatchedEnv
+from jaxenvs.run import compile_cache
 from jaxenvs.testing import TaskChecker
 
 _SESSION_CACHE = os.environ["JAXENVS_CACHE_DIR"]
@@ -77,7 +77,7 @@ def get_batched():
 
 def _session_compile_cache() -> None:
     """JAX's persistent cache on, in the session directory, without the program store
-    (:func:`jaxenvs.compile_cache.active` stays ``None``; tests of the store switch it on
+    (:func:`jaxenvs.run.compile_cache.active` stays ``None``; tests of the store switch it on
     themselves)."""
     jax.config.update("jax_compilation_cache_dir", _SESSION_CACHE)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)

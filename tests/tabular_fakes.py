@@ -38,7 +38,7 @@ class FakeSim:
     def select_data(
         self, pick: Callable[[jax.Array, jax.Array], jax.Array], new: FakeData, old: FakeData
     ) -> FakeData:
-        return jax.tree.map(pick, new, old)  # every field, as jaxenvs.sim.Sim does
+        return jax.tree.map(pick, new, old)  # every field, as jaxenvs.physics.sim.Sim does
 
 
 class FakeData(struct.PyTreeNode):

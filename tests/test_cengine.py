@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 
 import jaxenvs
-from jaxenvs import cengine, machine
+from jaxenvs import machine
 from jaxenvs.actions import random_actions
-from jaxenvs.physics import resolve_engine
+from jaxenvs.physics import cengine, resolve_engine
 from jaxenvs.testing import check_engine_parity, check_task
 
 BUILTIN = [
@@ -236,7 +236,7 @@ def test_config_records_resolved_engine():
 def test_every_maker_applies_the_engine_rule():
     """``make``, a directly built env and a training run's config all resolve ``"auto"``
     through :func:`resolve_engine`, with their batch size."""
-    from jaxenvs.agents import run_config
+    from jaxenvs.run import run_config
     from jaxenvs.tasks.cartpole import CartPole
 
     on_cpu = jax.default_backend() == "cpu"

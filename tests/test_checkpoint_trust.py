@@ -18,8 +18,8 @@ import pytest
 from tabular_fakes import fake_envs
 
 from jaxenvs import cli
-from jaxenvs.agents import checkpoint, loop, runner
-from jaxenvs.agents.checkpoint import CheckpointError
+from jaxenvs.run import checkpoint, loop, runner
+from jaxenvs.run.checkpoint import CheckpointError
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -10,8 +10,8 @@ import yaml
 from tabular_fakes import fake_envs
 
 from jaxenvs import cli
-from jaxenvs.agents import runner
 from jaxenvs.config import ConfigError
+from jaxenvs.run import runner
 
 CHAIN_AGENT = {
     "alpha": 0.5,

@@ -107,7 +107,7 @@ def test_train_from_the_command_line(run_dir: Path) -> None:
 
 
 def test_trained_policy_plays(run_dir: Path) -> None:
-    from jaxenvs.agents.runner import load_policy
+    from jaxenvs.run.runner import load_policy
 
     env_id, env, act_fn = load_policy(run_dir)
     assert env_id == CLI_ID and isinstance(env, Pendulum)

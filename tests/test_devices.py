@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxenvs import machine, placement
+from jaxenvs import machine
+from jaxenvs.core import placement
 
 _SCRIPT = textwrap.dedent(
     """

@@ -18,8 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxenvs import program_cache
-from jaxenvs.agents import checkpoint, runner
+from jaxenvs.run import checkpoint, program_cache, runner
 
 
 def _affine(x: jax.Array) -> jax.Array:
@@ -139,7 +138,7 @@ def test_unwritable_store_still_runs(tmp_path):
 
 # ------------------------------------------------------- JAX's compile cache, in process
 def test_compile_cache_entry_verifies_key_and_content():
-    from jaxenvs import _jax_cache_hook as hook
+    from jaxenvs.run import _jax_cache_hook as hook
 
     blob = hook.seal("k1", b"executable")
     assert hook.unseal("k1", blob) == b"executable"
@@ -152,7 +151,7 @@ def test_compile_cache_entry_verifies_key_and_content():
 
 
 def test_verified_cache_removes_a_damaged_entry_and_stores_anew(tmp_path):
-    from jaxenvs import _jax_cache_hook as hook
+    from jaxenvs.run import _jax_cache_hook as hook
 
     cache = hook.verified_cache(tmp_path, max_size=10**6)
     assert cache.eviction_enabled  # bounded, hence locked
@@ -168,7 +167,7 @@ def test_verified_cache_removes_a_damaged_entry_and_stores_anew(tmp_path):
 
 
 def test_verified_cache_evicts_past_its_size_even_without_access_times(tmp_path):
-    from jaxenvs import _jax_cache_hook as hook
+    from jaxenvs.run import _jax_cache_hook as hook
 
     (tmp_path / "old-cache").write_bytes(b"x" * 600)  # an unbounded cache's entry
     cache = hook.verified_cache(tmp_path, max_size=1000)
@@ -178,7 +177,7 @@ def test_verified_cache_evicts_past_its_size_even_without_access_times(tmp_path)
 
 
 def test_hook_only_on_the_tested_jax_releases(monkeypatch):
-    from jaxenvs import _jax_cache_hook as hook
+    from jaxenvs.run import _jax_cache_hook as hook
 
     assert hook.jax_release("0.10.2") == (0, 10) and hook.jax_release("0.12.0rc1") == (0, 12)
     for version, tested in (("0.10.2", True), ("0.11.9", True), ("0.12.0", False), ("1.0", False)):
@@ -192,8 +191,8 @@ def _compile_fresh(factor: float) -> None:
 
 
 def test_enable_bounds_the_cache_and_verifies_its_entries(tmp_path):
-    from jaxenvs import _jax_cache_hook as hook
-    from jaxenvs import compile_cache
+    from jaxenvs.run import _jax_cache_hook as hook
+    from jaxenvs.run import compile_cache
 
     assert hook.supported(), f"jax {jax.__version__}: test the fallback below instead"
     # (the conftest's autouse fixture restores the session's cache afterwards)
@@ -205,8 +204,8 @@ def test_enable_bounds_the_cache_and_verifies_its_entries(tmp_path):
 
 
 def test_enable_on_an_untested_jax_uses_its_own_cache(tmp_path, monkeypatch):
-    from jaxenvs import _jax_cache_hook as hook
-    from jaxenvs import compile_cache
+    from jaxenvs.run import _jax_cache_hook as hook
+    from jaxenvs.run import compile_cache
 
     monkeypatch.setattr(jax, "__version__", "0.12.0")
     assert compile_cache.enable(tmp_path, max_bytes=10**8) == tmp_path
@@ -217,7 +216,7 @@ def test_enable_on_an_untested_jax_uses_its_own_cache(tmp_path, monkeypatch):
 
 
 def test_unwritable_cache_directory_is_named_once(tmp_path):
-    from jaxenvs import compile_cache
+    from jaxenvs.run import compile_cache
 
     blocker = tmp_path / "not-a-dir"
     blocker.write_text("")

@@ -17,9 +17,9 @@ import yaml
 
 import jaxenvs
 from jaxenvs import cli
-from jaxenvs.agents import runner
 from jaxenvs.deploy import export, parity, runtime
 from jaxenvs.deploy.runtime import NumpyPolicy, PolicyFileError
+from jaxenvs.run import runner
 
 NUM_OBS = 10_240
 #: two chunks of a tiny PPO run on the C engine: it need not learn, only move its weights

@@ -23,9 +23,9 @@ import yaml
 from tabular_fakes import fake_envs
 
 from jaxenvs import cli, files
-from jaxenvs.agents import checkpoint, runner
-from jaxenvs.agents.checkpoint import CheckpointError
 from jaxenvs.config import ConfigError, load_yaml
+from jaxenvs.run import checkpoint, runner
+from jaxenvs.run.checkpoint import CheckpointError
 
 REPO = Path(__file__).resolve().parent.parent
 N = 4
@@ -312,7 +312,7 @@ def test_no_pickle_anywhere_in_the_package():
         for m in pattern.finditer(p.read_text())
     ]
     assert not offenders, offenders
-    assert "allow_pickle=False" in (REPO / "jaxenvs/agents/checkpoint.py").read_text()
+    assert "allow_pickle=False" in (REPO / "jaxenvs/run/checkpoint.py").read_text()
 
 
 def test_batch_not_divisible_by_devices_is_one_line(tmp_path):

@@ -19,7 +19,7 @@ import pytest
 import yaml
 from tabular_fakes import fake_envs
 
-from jaxenvs.agents import checkpoint, loop, programs, runner
+from jaxenvs.run import checkpoint, loop, programs, runner
 
 TIMING = ("wall_seconds", "cpu_seconds")
 

@@ -13,9 +13,9 @@ import yaml
 
 import jaxenvs
 from jaxenvs import cli, config
-from jaxenvs.agents import run_config
 from jaxenvs.config import ConfigError, load_yaml
 from jaxenvs.core import BatchedEnv
+from jaxenvs.run import run_config
 
 
 def test_a_config_file_over_the_limit_is_refused_before_parsing(tmp_path):

@@ -9,8 +9,8 @@ import pytest
 
 import jaxenvs
 from jaxenvs import cli
-from jaxenvs.agents import runner
 from jaxenvs.config import ConfigError
+from jaxenvs.run import runner
 
 HUGE = 99999999999999999999999
 

@@ -1,4 +1,4 @@
-"""The C engine's native call and its callback fallback (:mod:`jaxenvs.cengine`).
+"""The C engine's native call and its callback fallback (:mod:`jaxenvs.physics.cengine`).
 
 What these check: the install built and loaded the native engine (or, with
 ``JAXENVS_NATIVE=0``, that the callback path runs and says so in one line); both paths give
@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 import jaxenvs
-from jaxenvs import cengine, native
 from jaxenvs.actions import random_actions
+from jaxenvs.physics import cengine, native
 from jaxenvs.tasks.cartpole import BalanceConfig, CartpoleBalance
 from jaxenvs.testing import check_engine_parity
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import jaxenvs
-from jaxenvs.agents import losses, ppo, runner
+from jaxenvs.agents import losses, ppo
 from jaxenvs.agents.base import CHUNK_METRICS, make_train
 from jaxenvs.agents.networks import (
     ActorCritic,
@@ -23,6 +23,7 @@ from jaxenvs.agents.networks import (
     gaussian_log_prob,
 )
 from jaxenvs.config import ConfigError, apply_overrides
+from jaxenvs.run import runner
 
 GAMMA, LAM = 0.9, 0.8
 REWARDS = jnp.array([1.0, 2.0, 3.0])
@@ -150,7 +151,7 @@ def test_config_validation_names_the_key():
 
 
 def test_shipped_configs_resolve():
-    from jaxenvs.agents import runner
+    from jaxenvs.run import runner
 
     found = 0
     for env_id in jaxenvs.list_envs():

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from tabular_fakes import fake_envs
 
-from jaxenvs import compile_cache, program_cache
-from jaxenvs.agents import checkpoint, programs, runner
+from jaxenvs.run import checkpoint, compile_cache, program_cache, programs, runner
 
 
 class Carry(NamedTuple):
@@ -156,7 +155,7 @@ def test_user_tasks_are_not_stored(tmp_path, monkeypatch):
 def test_c_engine_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     """Programs that step the native C engine name the model by its digest, so they are
     stored and a second run loads them (the callback path's programs are not stored)."""
-    from jaxenvs import native
+    from jaxenvs.physics import native
 
     monkeypatch.setattr(compile_cache, "active", lambda: tmp_path / "cache")
     loaded: list[bool] = []

@@ -208,7 +208,7 @@ def test_cli_render_user_errors(tmp_path, monkeypatch, capsys, extra, match):
 
 @pytest.mark.full  # trains a tiny tabular run first (~1 min of CPU)
 def test_cli_render_with_a_trained_policy(tmp_path, capsys):
-    from jaxenvs.agents import runner
+    from jaxenvs.run import runner
 
     resolved = runner.resolve_config(
         "CartPole-v0",

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from jaxenvs import cli
-from jaxenvs.agents import runner
-from jaxenvs.agents.checkpoint import CheckpointError
+from jaxenvs.run import runner
+from jaxenvs.run.checkpoint import CheckpointError
 
 TINY = {
     "qlearning": {"num_envs": 4, "chunk_steps": 100, "total_steps": 400},

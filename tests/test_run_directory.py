@@ -16,7 +16,7 @@ import yaml
 from tabular_fakes import fake_envs
 
 from jaxenvs import cli, files
-from jaxenvs.agents import loop, runner
+from jaxenvs.run import loop, runner
 
 CHAIN_AGENT = {
     "alpha": 0.5,

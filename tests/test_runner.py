@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from tabular_fakes import fake_envs
 
-from jaxenvs.agents import checkpoint, loop, runner
-from jaxenvs.agents.checkpoint import CheckpointError
 from jaxenvs.config import config_to_dict
+from jaxenvs.run import checkpoint, loop, runner
+from jaxenvs.run.checkpoint import CheckpointError
 
 METRIC_COLUMNS = ("chunk", "seed", "env_steps", "episodes", "mean_return", "max_return")
 

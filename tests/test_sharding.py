@@ -1,4 +1,4 @@
-"""Env batches and PPO spread over several devices (jaxenvs.sharding), on MJX.
+"""Env batches and PPO spread over several devices (jaxenvs.core.sharding), on MJX.
 
 The multi-device checks run in subprocesses, because the CPU device count
 (``XLA_FLAGS=--xla_force_host_platform_device_count=N``) must be set before JAX starts.
@@ -35,8 +35,8 @@ import jax
 import numpy as np
 import pytest
 
-from jaxenvs import sharding
-from jaxenvs.placement import ENV_AXIS
+from jaxenvs.core import sharding
+from jaxenvs.core.placement import ENV_AXIS
 
 ROLLOUT_TOL = 1e-6
 PPO_TOL = 1e-4
@@ -46,9 +46,9 @@ _SCRIPT = textwrap.dedent(
     import json, sys
     import jax, numpy as np
     import jaxenvs
-    from jaxenvs import sharding as sh
+    from jaxenvs.core import sharding as sh
     from jaxenvs.agents import ppo
-    from jaxenvs.agents.placement import shard_trainer_fns
+    from jaxenvs.run.placement import shard_trainer_fns
 
     out_path = sys.argv[1]
     run = json.loads(sys.argv[2])

@@ -9,8 +9,8 @@ import pytest
 from mujoco import mjx
 
 import jaxenvs
+from jaxenvs.physics.sim import physics_model
 from jaxenvs.robots import robot_xml
-from jaxenvs.sim import physics_model
 
 ROBOTS = ("cartpole", "reacher", "hexapod", "hexapod_leg")
 
@@ -78,7 +78,7 @@ def test_c_engine_hands_back_a_state_mujoco_reset_as_nan(tmp_path):
     """MuJoCo resets a state that goes bad (a state going in, or an acceleration, past
     mjMAXVAL) to the model's defaults and carries on; the C engine hands such an env back
     as NaN, as MJX would, so that the task flags it diverged."""
-    from jaxenvs.sim import CSim, Sim
+    from jaxenvs.physics.sim import CSim, Sim
 
     xml = tmp_path / "slider.xml"
     xml.write_text(

@@ -10,8 +10,9 @@ import yaml
 
 import jaxenvs
 from jaxenvs import cli
-from jaxenvs.agents import run_config, tabular
+from jaxenvs.agents import tabular
 from jaxenvs.config import ConfigError, apply_overrides
+from jaxenvs.run import run_config
 
 BOUNDS = {"obs_low": [-2.4, -3.0, -0.21, -3.5], "obs_high": [2.4, 3.0, 0.21, 3.5]}
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 from tabular_fakes import fake_envs
 
-from jaxenvs.agents import ppo, runner
+from jaxenvs.agents import ppo
+from jaxenvs.run import runner
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from jaxenvs import cli, render
-from jaxenvs.agents import runner
+from jaxenvs.run import runner
 
 FULL_DISK = "[out#0/mp4 @ 0x5581] Error writing trailer: No space left on device"
 REFUSED = "[libx264 @ 0x5582] width not divisible by 2 (641x481)"

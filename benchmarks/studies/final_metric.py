@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxenvs.agents import runner
+from jaxenvs.run import runner
 
 
 def final_metric(run_dir: str, metric: str, episodes: int, seed: int) -> np.ndarray:

@@ -444,7 +444,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
     """The PPO :class:`Trainer` of ``env`` (a single env; a batched one is unwrapped)."""
     config.validate()
     single: Env = env.env if isinstance(env, BatchedEnv) else env
-    # one device here: the runner spreads the whole training state (jaxenvs.sharding)
+    # one device here: the runner spreads the whole training state (jaxenvs.core.sharding)
     benv = BatchedEnv(single, config.num_envs, randomize=config.randomize, devices=1)
     net = make_network(single, config)
     head = CATEGORICAL if single.discrete else GAUSSIAN

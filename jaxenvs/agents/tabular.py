@@ -335,7 +335,7 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
     sarsa = isinstance(config, SarsaConfig)
     disc = make_discretiser(low, high, config.number_splits)
     num_actions = env.action_size
-    # one device here: the runner spreads the whole training state (jaxenvs.sharding)
+    # one device here: the runner spreads the whole training state (jaxenvs.core.sharding)
     benv = BatchedEnv(env, config.num_envs, devices=1)
     n = config.num_envs
     gamma, alpha = config.gamma, config.alpha

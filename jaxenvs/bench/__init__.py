@@ -172,7 +172,7 @@ def prepare_ours(
 ) -> Runner:
     """Compile and warm up ``steps`` batched steps of ``env_id`` at ``num_envs`` envs.
 
-    ``devices`` > 1 runs the full step through :mod:`jaxenvs.sharding` with the batch
+    ``devices`` > 1 runs the full step through :mod:`jaxenvs.core.sharding` with the batch
     split over that many devices (each timed call then also includes one reset).
     ``physics`` picks the engine (default: the task's ``auto`` choice); the result's
     ``physics`` field names the one used.
@@ -223,7 +223,7 @@ def prepare_batched(
 
 
 def _prepare_sharded(env_id: str, benv: BatchedEnv, mode: str, steps: int, devices: int) -> Runner:
-    from jaxenvs import sharding
+    from jaxenvs.core import sharding
 
     if mode != "full":
         raise ValueError("--devices > 1 measures the full (auto-resetting) step only")

@@ -164,7 +164,7 @@ def _mujoco_rollout(task: str, env: Env, num_envs: int, threads: int) -> Runner 
     except Exception as err:
         return Skipped("mujoco.rollout", task, "our MJCF", _why(err))
     # the model our MJX step runs (the MJCF without cameras, lights and non-colliding
-    # geoms: jaxenvs.sim.physics_model), so both sides do the same physics work
+    # geoms: jaxenvs.physics.sim.physics_model), so both sides do the same physics work
     model = getattr(env.sim, "physics_mj_model", env.sim.mj_model)
     substeps = env.sim.substeps
     data = mujoco.MjData(model)

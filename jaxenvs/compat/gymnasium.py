@@ -508,7 +508,7 @@ def _check_render_mode(render_mode: str | None, human_ok: bool = False) -> None:
                 "WAYLAND_DISPLAY are unset); use render_mode='rgb_array' (frames, videos "
                 "through gymnasium.wrappers.RecordVideo or `jaxenvs render`)"
             )
-        if human_ok:  # the single env draws in MuJoCo's viewer (jaxenvs.viewer)
+        if human_ok:  # the single env draws in MuJoCo's viewer (jaxenvs.render.viewer)
             return
         raise ValueError(
             "render_mode='human' has no native window in the Gymnasium facade yet; wrap an "
@@ -547,7 +547,7 @@ class JaxEnv(gymnasium.Env):
     Args:
       env_id: a registered jaxenvs id (without the ``jaxenvs/`` prefix).
       render_mode: ``None``, ``"rgb_array"``, or ``"human"``: MuJoCo's viewer window
-        (:mod:`jaxenvs.viewer`), drawn in real time at every reset and step; needs a
+        (:mod:`jaxenvs.render.viewer`), drawn in real time at every reset and step; needs a
         display (refused with a clear message where there is none).
       width, height, camera: frame size and camera for ``render()`` (see
         :mod:`jaxenvs.render`).
@@ -625,7 +625,7 @@ class JaxEnv(gymnasium.Env):
             raise ResetNeeded("Cannot call env.render() before calling env.reset()")
         if self.render_mode == "human":
             if self._renderer is None:
-                from jaxenvs.viewer import StateViewer
+                from jaxenvs.render.viewer import StateViewer
 
                 self._renderer = StateViewer(self.jax_env)
             self._renderer.show(self.state)

@@ -45,7 +45,7 @@ class ExportError(ValueError):
 def _best_seed(run_dir: Path, num_seeds: int) -> int:
     """The seed ``jaxenvs view``/``render --policy`` act with: the best final evaluation
     (seed 0 when the run has no summary)."""
-    from jaxenvs.agents.run_config import SUMMARY_FILE
+    from jaxenvs.run.run_config import SUMMARY_FILE
 
     try:
         per_seed = json.loads((run_dir / SUMMARY_FILE).read_text())["eval_mean_return_per_seed"]
@@ -120,8 +120,8 @@ def policy_of_run(run_dir: str | Path, seed: int | None = None) -> NumpyPolicy:
     """The greedy policy of seed ``seed`` (default: the best) of a PPO run directory."""
     import jax
 
-    from jaxenvs.agents import restore
-    from jaxenvs.agents.run_config import load_run_config
+    from jaxenvs.run import restore
+    from jaxenvs.run.run_config import load_run_config
 
     run_dir = Path(run_dir)
     algo = load_run_config(run_dir).algo

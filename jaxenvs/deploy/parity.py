@@ -39,7 +39,7 @@ class JaxPolicy:
 def jax_policy(run_dir: str | Path, seed: int, physics: str | None = None) -> JaxPolicy:
     """Seed ``seed`` of a run's greedy policy, its env stepped by ``physics`` (default: the
     run's engine)."""
-    from jaxenvs.agents import restore
+    from jaxenvs.run import restore
 
     _, env, trainer, params = restore.restore_policy(run_dir, physics)
     params = jax.tree.map(lambda x: x[seed], params)

@@ -3,7 +3,7 @@ physics.
 
 A :class:`Robot` is built from one MJCF file. It knows
 
-* how to build its :class:`~jaxenvs.sim.Sim` (:meth:`Robot.make_sim`: timestep, substeps,
+* how to build its :class:`~jaxenvs.physics.sim.Sim` (:meth:`Robot.make_sim`: timestep, substeps,
   model edits, whether MuJoCo evaluates the MJCF's sensors in each physics step);
 * its joints (:attr:`Robot.joints`: name -> qpos/qvel addresses), its actuators and their
   COMMAND MAP (:meth:`Robot.command`: an action in [-1, 1] per actuator -> ``ctrl``, linear
@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxenvs.sim import Sim
+from jaxenvs.physics.sim import Sim
 
 Readings = dict[str, jax.Array]
 

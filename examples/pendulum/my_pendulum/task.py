@@ -28,7 +28,7 @@ from mujoco import mjx
 
 from jaxenvs.config import require
 from jaxenvs.core import Env, NoExtras, TaskConfig
-from jaxenvs.sim import Sim
+from jaxenvs.physics.sim import Sim
 
 XML = Path(__file__).with_name("pendulum.xml")
 

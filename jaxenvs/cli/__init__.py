@@ -1,0 +1,83 @@
+"""The ``jaxenvs`` command line: list, train, eval, compare, render, bench, view, export.
+
+Each subcommand lives in its own module under ``jaxenvs.cli`` exposing
+``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``. Errors the user
+can fix (bad id, bad config, unwritable output) print one line and exit 2; ``--debug``
+shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+COMMANDS = ("list", "train", "eval", "compare", "render", "bench", "view", "export")
+
+
+def _module(name: str):  # type: ignore[no-untyped-def]
+    return importlib.import_module(f"jaxenvs.cli.{name}_cmd")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="jaxenvs",
+        description="JAX-accelerated robot RL environments on MuJoCo MJX.",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        try:
+            mod = _module(name)
+        except ModuleNotFoundError as err:
+            if err.name != f"jaxenvs.cli.{name}_cmd":
+                raise
+            p = sub.add_parser(name, help="(not available in this version)")
+            p.set_defaults(_run=_unavailable(name))
+            continue
+        p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def _unavailable(name: str):  # type: ignore[no-untyped-def]
+    def run(args: argparse.Namespace) -> int:
+        print(f"jaxenvs {name}: not available in this version", file=sys.stderr)
+        return 2
+
+    return run
+
+
+def _use_cores(args: argparse.Namespace) -> None:
+    """Every command uses all usable cores unless ``--threads`` says otherwise; this runs
+    before the command's first JAX operation (it fixes the CPU's XLA device count)."""
+    from jaxenvs import machine
+
+    machine.use_cores(getattr(args, "threads", None), strict=False)
+
+
+class UserError(Exception):
+    """An error the user can fix; printed as one line."""
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        _use_cores(args)
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except (UserError, ValueError, TypeError, OSError) as err:
+        if args.debug:
+            raise
+        msg = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        print(f"jaxenvs {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

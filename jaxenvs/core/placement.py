@@ -1,0 +1,181 @@
+"""Where env batches live: the one place that decides devices and meshes.
+
+Three decisions, all here:
+
+* **The CPU's host devices.** MJX on a CPU runs one XLA program per host device, and one
+  XLA CPU device keeps about two cores busy (benchmarks/RESULTS.md), so jaxenvs asks XLA
+  for :func:`host_devices_for` ``(cores)`` devices: :func:`set_host_devices`, called by
+  :func:`jaxenvs.machine.use_cores` before JAX starts its backends.
+* **The devices a batch is spread over.** A batch of ``num_envs`` envs is spread over
+  ``n`` devices by splitting its leading (env) axis over a 1-D mesh whose axis is
+  :data:`ENV_AXIS`; ``num_envs`` must then be a multiple of ``n``. :func:`batch_devices`
+  picks ``n``: by default every local device that the batch divides over, one under the
+  C engine (its own threads spread the batch). :class:`jaxenvs.core.BatchedEnv` keeps its
+  batch on :func:`local_mesh` ``(n)`` through :func:`spread`; the runner spreads its
+  training state over the same count (:mod:`jaxenvs.run.programs`).
+* **Placing it yourself.** ``devices=1`` (``BatchedEnv.on_one_device()``) keeps a batch
+  unspread, for callers that lay it out with their own shardings
+  (:mod:`jaxenvs.core.sharding`'s meshes over every host's devices, which check their sizes with
+  :func:`check_count` and :func:`check_divisible`).
+
+Every error is a ``ValueError`` that names the numbers involved and a valid alternative.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+#: name of the mesh axis an env batch is split over (see :mod:`jaxenvs.core.sharding`).
+ENV_AXIS = "envs"
+
+
+# --------------------------------------------------------------------------- the CPU
+def host_devices_for(n_cores: int) -> int:
+    """XLA host devices for ``n_cores`` cores: one per two cores, at least one."""
+    return max(1, n_cores // 2)
+
+
+def user_chose_host_devices() -> bool:
+    """True if the user already set the CPU device count (flag, variable or option)."""
+    if "xla_force_host_platform_device_count" in os.environ.get("XLA_FLAGS", ""):
+        return True
+    if os.environ.get("JAX_NUM_CPU_DEVICES"):
+        return True
+    return int(getattr(jax.config, "jax_num_cpu_devices", -1) or -1) > 0
+
+
+def set_host_devices(n: int, strict: bool = True) -> None:
+    """Ask XLA for ``n`` CPU host devices, unless the user chose a count.
+
+    JAX fixes the count when it starts its backends (and then refuses a new one): asked
+    later for a count the CPU does not have, this raises ``RuntimeError`` naming the fix
+    (``strict``) or only warns.
+    """
+    if user_chose_host_devices():
+        return
+    try:
+        jax.config.update("jax_num_cpu_devices", n)
+    except RuntimeError:  # JAX refuses a new count once its backends are up
+        have = _cpu_device_count()
+        if have != n:
+            msg = (
+                f"jaxenvs.machine.use_cores came after JAX started: the CPU keeps {have} "
+                f"device(s) instead of {n}; call it before the first JAX operation, or "
+                f"set XLA_FLAGS=--xla_force_host_platform_device_count={n}"
+            )
+            if strict:
+                raise RuntimeError(msg) from None
+            warnings.warn(msg, stacklevel=3)
+
+
+def _cpu_device_count() -> int:
+    try:
+        return len(jax.devices("cpu"))
+    except RuntimeError:  # no CPU backend
+        return 1
+
+
+# --------------------------------------------------------------------------- counts
+def divisible_devices(num_envs: int, available: int) -> int:
+    """The most devices, at most ``available``, that ``num_envs`` splits over evenly."""
+    return max(d for d in range(1, min(available, num_envs) + 1) if num_envs % d == 0)
+
+
+def check_count(devices: object, available: int, platform: str, local: bool = False) -> int:
+    """``devices`` as an int, after checking it is a positive integer at most ``available``.
+
+    Raises ``ValueError`` otherwise; the message says how to get more devices on a CPU
+    (``local=True`` also names :func:`jaxenvs.machine.use_cores`).
+    """
+    if isinstance(devices, bool) or not isinstance(devices, int) or devices < 1:
+        raise ValueError(f"devices must be a positive integer, got {devices!r}")
+    if devices > available:
+        knob = "call jaxenvs.machine.use_cores first, or " if local else ""
+        raise ValueError(
+            f"asked for {devices} devices but only {available} are available "
+            f"({platform}); on a CPU {knob}set "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={devices} before JAX starts"
+        )
+    return devices
+
+
+def check_divisible(num_envs: int, devices: int, hint: str = "") -> None:
+    """Raise ``ValueError`` unless ``num_envs`` splits evenly over ``devices``.
+
+    The message names the nearest multiples of ``devices``; ``hint`` is appended to its
+    "or fewer devices" (e.g. the command-line option that sets the count).
+    """
+    if num_envs % devices:
+        lower = max(devices, num_envs - num_envs % devices)
+        raise ValueError(
+            f"num_envs={num_envs} does not divide evenly over {devices} devices: use a "
+            f"multiple of {devices} (e.g. {lower} or {lower + devices}), or fewer devices"
+            f"{hint}"
+        )
+
+
+def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
+    """How many local devices a batch of ``num_envs`` envs is spread over.
+
+    ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
+    host devices or GPUs), or as many of them as ``num_envs`` divides over evenly, with a
+    warning when that is fewer; under the C engine one (its own threads spread the batch).
+    An explicit count must divide ``num_envs`` and exist, or ``ValueError`` names the
+    nearest valid sizes.
+    """
+    available = jax.local_device_count()
+    if devices is None:
+        if physics == "c" or available == 1:
+            return 1
+        n = divisible_devices(num_envs, available)
+        if n < available and num_envs >= available:
+            lower = num_envs - num_envs % available
+            warnings.warn(
+                f"num_envs={num_envs} does not divide over the {available} local devices: "
+                f"spreading over {n} (a multiple of {available}, e.g. {lower} or "
+                f"{lower + available}, uses them all)",
+                stacklevel=3,
+            )
+        return n
+    check_count(devices, available, jax.default_backend(), local=True)
+    check_divisible(num_envs, devices)
+    return devices
+
+
+# --------------------------------------------------------------------------- meshes
+def local_mesh(n: int) -> Mesh | None:
+    """A 1-D mesh with axis :data:`ENV_AXIS` over the first ``n`` local devices; ``None``
+    for one device (nothing to spread)."""
+    return None if n == 1 else Mesh(np.array(jax.local_devices()[:n]), (ENV_AXIS,))
+
+
+def spread(mesh: Mesh | None, fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(first, second, rest)`` with the first two arguments' and the result's leading
+    (env) axis split over ``mesh`` (``None``: plain ``fn(*args)``).
+
+    One program over the mesh, not a ``shard_map``: the compiler partitions it and adds
+    the one cross-device reduction (the auto-reset's ``any(done)``), so every device takes
+    the same auto-reset decision and every env's arithmetic is as on one device. Under
+    the C engine XLA does not partition the engine's call (each device would step the
+    whole batch), which is why :func:`batch_devices` keeps a C batch on one device.
+    """
+    if mesh is None:
+        return fn(*args)
+    split = NamedSharding(mesh, PartitionSpec(ENV_AXIS))
+
+    def place(tree: Any) -> Any:
+        return jax.lax.with_sharding_constraint(tree, jax.tree.map(lambda _: split, tree))
+
+    def run(first: Any, second: Any, rest: Any) -> Any:
+        return place(fn(place(first), place(second), rest))
+
+    # jit: inlined when the caller is traced; called eagerly, the task's constants
+    # (committed to one device) become part of one program over the mesh
+    return jax.jit(run)(*args)

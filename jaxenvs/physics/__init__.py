@@ -1,0 +1,78 @@
+"""The engine rule: which engine ``physics="auto"`` (and every other value) means.
+
+:func:`resolve_engine` is the one place that turns a task config's ``physics`` into the
+engine that steps it, ``"mjx"`` or ``"c"``. It is called once, when an env is made:
+:func:`jaxenvs.make` calls it with the batch size (through :func:`with_engine`), the
+runner with its ``num_envs`` (:func:`jaxenvs.run.run_config.engine_resolved`), and
+:class:`jaxenvs.core.Env` itself for a config built without either; a built env's config
+holds the resolved engine, so resolving it again returns it unchanged.
+
+The rule's inputs are two class attributes of the task, both measured (the evidence:
+benchmarks/RESULTS.md, section "physics='auto' on a CPU", from
+``benchmarks/engines_sweep.sh``):
+
+* ``cpu_physics``: the engine a CPU steps the task with (``"mjx"`` unless measured);
+* ``cpu_mjx_from``: the batch size from which MJX's steady-state throughput passed the C
+  engine's on a CPU (``None``: never).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, TypeVar
+
+import jax
+
+#: values of ``TaskConfig.physics``
+PHYSICS_CHOICES = ("auto", "mjx", "c")
+
+ConfigT = TypeVar("ConfigT")
+
+
+def resolve_engine(
+    task: type,
+    requested: str,
+    num_envs: int | None = None,
+    backend: str | None = None,
+) -> str:
+    """The engine, ``"mjx"`` or ``"c"``, that ``requested`` means for ``task`` (an
+    :class:`jaxenvs.core.Env` subclass) in a batch of ``num_envs`` (``None``: one env) on
+    ``backend`` (default: JAX's default backend).
+
+    ``"auto"`` is MJX on an accelerator; on a CPU it is ``task.cpu_physics``, or MJX for
+    batches of at least ``task.cpu_mjx_from`` envs. ``"mjx"`` and ``"c"`` mean themselves,
+    except that ``"c"`` on an accelerator raises ``ValueError`` (MuJoCo's C engine runs on
+    the CPU only); any other value raises ``ValueError``.
+    """
+    if requested not in PHYSICS_CHOICES:
+        raise ValueError(f"physics must be one of {', '.join(PHYSICS_CHOICES)}, got {requested!r}")
+    backend = backend or jax.default_backend()
+    if requested == "auto":
+        if backend != "cpu":
+            return "mjx"
+        threshold = getattr(task, "cpu_mjx_from", None)
+        if num_envs is not None and threshold is not None and num_envs >= threshold:
+            return "mjx"
+        return str(getattr(task, "cpu_physics", "mjx"))
+    if requested == "c" and backend != "cpu":
+        raise ValueError(
+            f"physics='c' steps MuJoCo's C engine on the CPU, but JAX's default backend is "
+            f"{backend!r}: use physics='mjx' or 'auto' there, or run with JAX_PLATFORMS=cpu"
+        )
+    return requested
+
+
+def with_engine(factory: Any, config: ConfigT, num_envs: int | None = None) -> ConfigT:
+    """``config`` with its ``physics`` resolved by :func:`resolve_engine` for a batch of
+    ``num_envs`` envs of ``factory``'s task.
+
+    Only a task class carries the rule's inputs: for a factory function ``config`` comes
+    back as it is, and the env it builds resolves its own engine (for one env).
+    """
+    requested = getattr(config, "physics", None)
+    if not isinstance(factory, type) or requested is None:
+        return config
+    engine = resolve_engine(factory, requested, num_envs)
+    if engine == requested:
+        return config
+    return dataclasses.replace(config, physics=engine)  # type: ignore[type-var]

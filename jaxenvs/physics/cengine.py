@@ -1,0 +1,454 @@
+"""MuJoCo's C engine behind the functional API (``physics="c"``), for CPUs.
+
+A task's ``reset``/``step`` stay the same pure JAX functions over an ``mjx.Data``; only the
+physics step changes. Each control step is one call out of the compiled program into
+MuJoCo's batched C API (``mujoco/mjbatch.h``): every env of the batch is stepped on its own
+from the full state it holds (``mj_step`` per substep, float64), on a pool of threads in
+native code. From JAX's side it is a pure function: ``jit``, nested ``vmap`` (the call sees
+every batch axis at once), ``lax.scan``, the auto-reset, sharding and domain randomisation
+work, and the same inputs give the same outputs bit for bit at any thread count.
+
+**Two paths, one result.** The call is the native engine (:mod:`jaxenvs.physics.native`: an XLA FFI
+custom call, no Python and no GIL per step, and nothing process-specific in the compiled
+program, which names the model by a digest of its content, so programs go into JAX's
+persistent cache) when it was built and loads; otherwise a ``jax.pure_callback`` into
+``mujoco.batch.Batch``, with the same outputs (tested) at a higher cost per call.
+:func:`path` says which one runs and why.
+
+**Fields.** A step reads the state MJX's step reads (:data:`INPUTS`: ``time``, ``qpos``,
+``qvel``, ``act``, ``qacc_warmstart``, ``ctrl``, applied forces, ``eq_active``, mocap poses,
+``userdata``) and writes the state it advances (:data:`ADVANCED`) and every derived field
+``mjx.Data`` shares with MuJoCo's ``mjData`` (body, geom and site poses, centre-of-mass
+quantities, ``sensordata``, ``qacc``, actuator quantities, the mass matrix, ...), with MJX's
+convention: derived fields describe the state before the last substep. A field the step
+does not compute for this model (``qfrc_inverse``; ``cacc`` without a sensor that needs it)
+is 0, as in a fresh ``mjx.Data``. The contact and constraint arrays (``contact``, ``efc_*``),
+whose layouts differ between the engines, hold :class:`Unavailable`: reading one raises
+:class:`CEngineError` at trace time naming the field.
+
+**Bad states.** MuJoCo resets a state whose positions, velocities or accelerations are
+non-finite or huge, with a warning, and carries on. Such an env (and one whose step raised
+a warning of a full constraint arena, a bad control, or an error) comes back with every
+field but ``time`` NaN, on any step, the first of an episode included, so the task's
+divergence check terminates it as under MJX.
+
+**Timers.** MuJoCo's Python bindings install a default clock as ``mjcb_time`` at import,
+timing every stage of every step in the process (``mjData.timer``), a quarter of a small
+model's step. Native calls turn that default clock off (``engine.cc``); a clock installed
+with ``mujoco.set_mjcb_time(fn)`` is kept.
+
+**Params.** ``sim.model_with(fields)`` names model fields by their MuJoCo names
+(``body_mass``, ``actuator_gear``, ...). Their values travel with each call, per env, into
+per-simulation model fields of the batch: memory grows with threads, not with envs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import threading
+import warnings
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import mjx
+
+from jaxenvs.physics import native
+
+_S = mujoco.mjtState
+_W = mujoco.mjtWarning
+
+#: ``mjx.Data`` fields a C step reads
+INPUTS = (
+    "time",
+    "qpos",
+    "qvel",
+    "act",
+    "qacc_warmstart",
+    "ctrl",
+    "qfrc_applied",
+    "xfrc_applied",
+    "eq_active",
+    "mocap_pos",
+    "mocap_quat",
+    "userdata",
+)
+#: the state a C step advances (inputs that are also outputs)
+ADVANCED = ("time", "qpos", "qvel", "act", "qacc_warmstart")
+#: warnings that mark a step as failed (see the module docstring)
+BAD_WARNINGS = tuple(
+    int(w)
+    for w in (
+        _W.mjWARN_CONTACTFULL,
+        _W.mjWARN_CNSTRFULL,
+        _W.mjWARN_BADQPOS,
+        _W.mjWARN_BADQVEL,
+        _W.mjWARN_BADQACC,
+        _W.mjWARN_BADCTRL,
+    )
+)
+#: below this many (envs x substeps x dofs) a batch is stepped on the calling thread (a
+#: hand-off to the pool costs about as much as 64 dof-steps of a small model)
+SERIAL_WORK = 64
+
+
+class CEngineError(ValueError):
+    """A model, a params field or a state field the C engine cannot step or provide."""
+
+
+class Unavailable:
+    """Stands in for an ``mjx.Data`` field the C engine does not provide.
+
+    A pytree node with no leaves, so states holding it are jitted, vmapped, scanned and
+    merged as usual; any use of it as a value (an attribute, an index, arithmetic,
+    ``jnp.asarray``) raises :class:`CEngineError` naming the field.
+    """
+
+    __slots__ = ("name",)
+
+    def __init__(self, name: str) -> None:
+        object.__setattr__(self, "name", name)
+
+    def fail(self) -> Any:
+        raise CEngineError(
+            f"mjx.Data field {self.name!r} is not provided by physics='c' (MuJoCo C lays "
+            "out contacts and constraints differently from MJX): read it under "
+            "physics='mjx'"
+        )
+
+    def __getattr__(self, attr: str) -> Any:
+        if attr.startswith("__"):
+            raise AttributeError(attr)
+        return self.fail()
+
+    def __setattr__(self, attr: str, value: Any) -> None:
+        self.fail()
+
+    def __jax_array__(self) -> Any:
+        return self.fail()
+
+    def __array__(self, *args: Any, **kwargs: Any) -> Any:
+        return self.fail()
+
+    def __getitem__(self, key: Any) -> Any:
+        return self.fail()
+
+    def __bool__(self) -> bool:
+        return bool(self.fail())
+
+    def __len__(self) -> int:
+        return int(self.fail())
+
+    def __repr__(self) -> str:
+        return f"Unavailable({self.name!r}: not provided by physics='c')"
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Unavailable) and other.name == self.name
+
+    def __hash__(self) -> int:
+        return hash(("jaxenvs.physics.cengine.Unavailable", self.name))
+
+
+def _fail_op(self: Unavailable, *args: Any) -> Any:
+    return self.fail()
+
+
+for _op in ("add", "sub", "mul", "truediv", "floordiv", "pow", "matmul", "mod"):
+    setattr(Unavailable, f"__{_op}__", _fail_op)
+    setattr(Unavailable, f"__r{_op}__", _fail_op)
+for _op in ("neg", "pos", "abs", "lt", "le", "gt", "ge", "float", "int", "iter"):
+    setattr(Unavailable, f"__{_op}__", _fail_op)
+
+jax.tree_util.register_pytree_node(
+    Unavailable, lambda u: ((), u.name), lambda name, _: Unavailable(name)
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    """Which ``mjx.Data`` fields a C step reads and writes, for one model.
+
+    Attributes:
+      inputs: non-empty :data:`INPUTS` fields, in call order.
+      outputs: ``(name, in_impl)`` of every field written (``in_impl``: a field of
+        ``data._impl``), :data:`ADVANCED` first.
+      unavailable: ``data._impl`` fields the C engine does not provide.
+      shapes: each input's and output's shape for one env.
+    """
+
+    inputs: tuple[str, ...]
+    outputs: tuple[tuple[str, bool], ...]
+    unavailable: tuple[str, ...]
+    shapes: Mapping[str, tuple[int, ...]]
+
+
+def layout(model: mujoco.MjModel, template: mjx.Data) -> Layout:
+    """The :class:`Layout` of ``model`` for an ``mjx.Data`` shaped like ``template``."""
+    c_data = mujoco.MjData(model)
+    inputs: list[str] = []
+    outputs: list[tuple[str, bool]] = [(n, False) for n in ADVANCED]
+    unavailable: list[str] = []
+    shapes: dict[str, tuple[int, ...]] = {}
+
+    def matches(name: str, leaf: Any) -> bool:
+        if name == "actuator_moment":  # MJX dense (nu, nv); MuJoCo compressed rows
+            return leaf.shape == (model.nu, model.nv)
+        value = getattr(c_data, name, None)
+        return (
+            isinstance(value, np.ndarray)
+            and value.dtype == np.float64
+            and value.size == np.size(leaf)
+            and jnp.issubdtype(leaf.dtype, jnp.floating)
+        )
+
+    for field in dataclasses.fields(template):
+        name = field.name
+        if name == "_impl":
+            continue
+        leaf = getattr(template, name)
+        shapes[name] = np.shape(leaf)
+        if name in INPUTS:
+            if np.size(leaf) or name == "time":
+                inputs.append(name)
+        elif name not in ADVANCED and np.size(leaf) and matches(name, leaf):
+            outputs.append((name, False))
+        elif np.size(leaf) and name not in ("history", "plugin_state"):
+            raise CEngineError(f"physics='c' has no value for mjx.Data field {name!r}")
+    impl = template._impl
+    for field in dataclasses.fields(impl):
+        name = field.name
+        leaf = getattr(impl, name)
+        if isinstance(leaf, int | float | np.integer):  # sizes (ncon, nefc, ...)
+            continue
+        if isinstance(leaf, jax.Array | np.ndarray):
+            shapes[name] = np.shape(leaf)
+            if not np.size(leaf):
+                continue
+            if matches(name, leaf):
+                outputs.append((name, True))
+                continue
+        unavailable.append(name)
+    return Layout(tuple(inputs), tuple(outputs), tuple(unavailable), shapes)
+
+
+def check_model(model: mujoco.MjModel) -> None:
+    """Raise :class:`CEngineError` for a model the C engine cannot step from an
+    ``mjx.Data`` (state it does not carry: history, plugin state, plasticity)."""
+    extra = {
+        "history": int(_S.mjSTATE_HISTORY),
+        "plugin state": int(_S.mjSTATE_PLUGIN),
+        "plastic state": int(_S.mjSTATE_PLASTIC),
+    }
+    held = [name for name, spec in extra.items() if mujoco.mj_stateSize(model, spec)]
+    if held:
+        raise CEngineError(f"physics='c' does not step models with {', '.join(held)}")
+
+
+@functools.lru_cache(maxsize=1)
+def _warn_fallback_once() -> None:
+    warnings.warn(
+        "jaxenvs: physics='c' steps through a Python callback, several times slower than "
+        f"the native engine: {native.unavailable_reason()}",
+        RuntimeWarning,
+        stacklevel=4,
+    )
+
+
+def path() -> str:
+    """``"native"`` or ``"callback"``: how a C step is called in this process."""
+    return "native" if native.available() else "callback"
+
+
+class CEngine:
+    """Steps batches of one model in MuJoCo C from inside JAX programs.
+
+    Args:
+      model: the host model to step (timestep, solver options and task edits applied).
+      template: an ``mjx.Data`` of the same model (shapes and dtypes of the state).
+      threads: the pool's size (``jaxenvs.machine.cpu_threads()``).
+      via: ``"native"`` or ``"callback"`` to force a path (tests compare them); default:
+        the native engine where it loads (:func:`path`).
+    """
+
+    def __init__(
+        self, model: mujoco.MjModel, template: mjx.Data, threads: int, via: str | None = None
+    ) -> None:
+        check_model(model)
+        if threads < 1:
+            raise ValueError(f"threads must be >= 1, got {threads}")
+        self.model = model
+        self.threads = int(threads)
+        self.layout = layout(model, template)
+        #: ``"native"`` or ``"callback"``
+        self.path = via or path()
+        if self.path not in ("native", "callback"):
+            raise ValueError(f"via must be 'native' or 'callback', got {via!r}")
+        #: the digest native calls name the model by (``None`` on the callback path)
+        self.key: str | None = None
+        self._callback: _Callback | None = None
+        if self.path == "native":
+            self.key = native.register_model(model)
+        else:
+            if via is None:
+                _warn_fallback_once()
+            self._callback = _Callback(model, self.threads, self.layout)
+
+    def blank(self, data: mjx.Data) -> mjx.Data:
+        """``data`` with the fields this engine does not provide replaced by
+        :class:`Unavailable`."""
+        impl = data._impl.replace(**{n: Unavailable(n) for n in self.layout.unavailable})
+        return data.replace(_impl=impl)
+
+    @functools.lru_cache(maxsize=64)  # noqa: B019 - one engine per Sim, kept for its life
+    def field_shape(self, name: str) -> tuple[int, ...]:
+        """Shape of model field ``name``; raises CEngineError naming an unknown one."""
+        value = getattr(self.model, name, None)
+        if not isinstance(value, np.ndarray) or value.dtype.kind != "f":
+            raise CEngineError(
+                f"physics='c': params field {name!r} is not a floating-point field of "
+                "MuJoCo's model, so the C engine cannot apply it (use physics='mjx')"
+            )
+        return value.shape
+
+    def step(
+        self, fields: Mapping[str, jax.Array], data: mjx.Data, ctrl: jax.Array, substeps: int
+    ) -> mjx.Data:
+        """Hold ``ctrl`` for ``substeps`` C physics steps from ``data`` with ``fields``."""
+        if substeps < 1:
+            raise ValueError(f"substeps must be >= 1, got {substeps}")
+        data = data.replace(ctrl=jnp.asarray(ctrl, data.ctrl.dtype))
+        return self._call(fields, data, int(substeps))
+
+    def forward(self, fields: Mapping[str, jax.Array], data: mjx.Data) -> mjx.Data:
+        """Every derived field at ``data``'s state (``mj_forward``); the state is kept."""
+        out = self._call(fields, data, 0)
+        return out.replace(**{n: getattr(data, n) for n in ADVANCED})
+
+    def _call(self, fields: Mapping[str, jax.Array], data: mjx.Data, substeps: int) -> mjx.Data:
+        lay = self.layout
+        dtype = data.qpos.dtype
+        names = tuple(sorted(fields))
+        params = []
+        for name in names:
+            value = jnp.asarray(fields[name], dtype)
+            if value.shape != self.field_shape(name):
+                raise CEngineError(
+                    f"physics='c': params field {name!r} has shape {value.shape}, the "
+                    f"model's is {self.field_shape(name)}"
+                )
+            params.append(value)
+        args = [jnp.asarray(getattr(data, n)) for n in lay.inputs]
+        args = [a if a.dtype == jnp.bool_ else a.astype(dtype) for a in args]
+        impl = data._impl
+        leaves = [jnp.asarray(getattr(impl if in_impl else data, n)) for n, in_impl in lay.outputs]
+        shapes = [jax.ShapeDtypeStruct(leaf.shape, leaf.dtype) for leaf in leaves]
+        if self._callback is None:
+            call = jax.ffi.ffi_call(native.TARGET, shapes, vmap_method="broadcast_all")
+            results = call(
+                *args,
+                *params,
+                model=self.key,
+                substeps=np.int64(substeps),
+                threads=np.int64(self.threads),
+                serial_work=np.int64(SERIAL_WORK),
+                inputs=",".join(lay.inputs),
+                params=",".join(names),
+                outputs=",".join(n for n, _ in lay.outputs),
+            )
+        else:
+            host = functools.partial(self._callback, substeps, names)
+            results = jax.pure_callback(host, shapes, *args, *params, vmap_method="broadcast_all")
+        top = {n: r for (n, in_impl), r in zip(lay.outputs, results, strict=True) if not in_impl}
+        low = {n: r for (n, in_impl), r in zip(lay.outputs, results, strict=True) if in_impl}
+        return data.replace(_impl=impl.replace(**low), **top)
+
+
+class _Callback:
+    """The callback path: the native engine's contract over ``mujoco.batch.Batch``.
+
+    One persistent batch (an ``MjData`` per env) per batch size, so that every derived
+    field is the env's own, as in the native engine, which clears them before each step.
+    """
+
+    def __init__(self, model: mujoco.MjModel, threads: int, lay: Layout) -> None:
+        self.model = model
+        self.threads = threads
+        self.layout = lay
+        # (batch, the model fields it has expanded) per (batch size, threads)
+        self._batches: dict[tuple[int, int], tuple[Any, set[str]]] = {}
+        self._lock = threading.Lock()  # devices may call at once; the batches are shared
+
+    def _batch(self, nsim: int, threads: int) -> tuple[Any, set[str]]:
+        from mujoco import batch
+
+        key = (nsim, threads)
+        if key not in self._batches:
+            self._batches[key] = (batch.Batch(self.model, nsim, threads, persistent=True), set())
+        return self._batches[key]
+
+    def __call__(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
+        with self._lock:
+            return self._step(substeps, names, *arrays)
+
+    def _step(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
+        from mujoco import batch as batch_module
+
+        m, lay = self.model, self.layout
+        arrays_np = [np.asarray(a) for a in arrays]
+        ins, params = arrays_np[: len(lay.inputs)], arrays_np[len(lay.inputs) :]
+        qpos = ins[lay.inputs.index("qpos")]
+        lead = qpos.shape[: qpos.ndim - 1]
+        nsim = int(np.prod(lead, dtype=np.int64))
+        serial = self.threads == 1 or nsim * max(substeps, 1) * max(m.nv, 1) < SERIAL_WORK
+        b, expanded = self._batch(nsim, 1 if serial else self.threads)
+        for name, value in zip(lay.inputs, ins, strict=True):
+            view = b.bind(name)
+            view[...] = value.reshape(view.shape)
+        for name in expanded - set(names):
+            b.expand(name)[...] = getattr(m, name)
+        for name, value in zip(names, params, strict=True):
+            rows = b.expand(name)
+            rows[...] = value.reshape(rows.shape)
+            expanded.add(name)
+        time0 = b.bind("time").copy()
+        b.warning[:, list(BAD_WARNINGS), 1] = 1
+        try:
+            if substeps:
+                b.step(None, substeps)
+            else:
+                b.forward(None)
+        except batch_module.SimulationError:
+            pass
+        bad = (b.status != 0) | np.any(b.warning[:, list(BAD_WARNINGS), 1] != 1, axis=1)
+        out = []
+        for name, _ in lay.outputs:
+            if name == "actuator_moment":
+                value = _dense_moment(b, m)
+            else:
+                value = np.array(b.bind(name), dtype=np.float64)
+            flat = value.reshape(nsim, -1)
+            if name == "time":
+                flat[bad, 0] = time0[bad] + substeps * m.opt.timestep
+            else:
+                flat[bad] = np.nan
+            out.append(flat.reshape(lead + lay.shapes[name]).astype(qpos.dtype))
+        return out
+
+
+def _dense_moment(b: Any, m: mujoco.MjModel) -> np.ndarray:
+    """MuJoCo's compressed-row ``actuator_moment`` of each sim as MJX's dense (nu, nv)."""
+    nnz, adr = b.bind("moment_rownnz"), b.bind("moment_rowadr")
+    col, val = b.bind("moment_colind"), b.bind("actuator_moment")
+    dense = np.zeros((b.nsim, m.nu, m.nv))
+    for j in range(int(nnz.max(initial=0))):
+        valid = nnz > j
+        k = np.where(valid, adr + j, 0)
+        cols = np.take_along_axis(col, k, axis=1)
+        vals = np.take_along_axis(val, k, axis=1)
+        sims, acts = np.nonzero(valid)
+        dense[sims, acts, cols[valid]] = vals[valid]
+    return dense
