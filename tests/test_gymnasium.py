@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 
 import gymnasium as gym
 import jax
@@ -432,6 +435,31 @@ def test_next_step_starts_where_same_step_starts():
     same.close()
 
 
+def test_randomized_next_step_draws_params_as_same_step():
+    """With domain randomisation a NEXT_STEP reset draws new params, the ones SAME_STEP
+    draws for the same env one step earlier."""
+    nxt, same = _vec(randomize=True), _vec("same_step", randomize=True)
+    nxt.reset(seed=3)
+    same.reset(seed=3)
+    first = nxt.unwrapped.state.params
+    actions = np.ones(N, np.int64)
+    for _ in range(SHORT):
+        nxt.step(actions)
+        same.step(actions)
+    kept = nxt.unwrapped.state.params
+    nxt.step(actions)  # resets every env
+    drawn, reference = nxt.unwrapped.state.params, same.unwrapped.state.params
+    first, kept, drawn, reference = (
+        [np.asarray(x) for x in jax.tree.leaves(p)] for p in (first, kept, drawn, reference)
+    )
+    for a, b, c, d in zip(first, kept, drawn, reference, strict=True):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(c, d)
+    assert any(not np.array_equal(a, c) for a, c in zip(first, drawn, strict=True))
+    nxt.close()
+    same.close()
+
+
 def test_same_step_autoreset_matches_sync_vector_env():
     """SAME_STEP: an env that ends at t returns a fresh start at t; its last obs and info
     are in final_obs / final_info, with the structure SyncVectorEnv gives."""
@@ -538,6 +566,33 @@ def test_compiled_functions_cache_is_bounded(monkeypatch):
     facade.compiled("CartPole-v0", {"force": 3.0})
     assert len(programs._CACHE) == 2
     assert facade.compiled("CartPole-v0", {"force": 1.0}) is not first
+
+
+_TWO_DEVICES = """
+import numpy as np, gymnasium as gym, jaxenvs
+runs = {}
+for devices in (2, 1):
+    envs = gym.make_vec("jaxenvs/CartPole-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                        max_episode_steps=5, devices=devices, physics="c")
+    assert envs.unwrapped._fns.batched.devices == devices
+    seq = [envs.reset(seed=0)[0]]
+    for _ in range(12):
+        obs, reward, *_ = envs.step(np.ones(4, np.int64))
+        seq += [obs, np.repeat(reward[:, None], 4, 1)]
+    seq.append(envs.reset(options={"reset_mask": np.array([True, False, True, False])})[0])
+    runs[devices] = np.concatenate(seq)
+np.testing.assert_array_equal(runs[2], runs[1])
+"""
+
+
+@pytest.mark.full  # a 2-device subprocess
+def test_next_step_vector_env_spread_over_devices_is_bit_identical():
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    env.pop("JAX_NUM_CPU_DEVICES", None)
+    proc = subprocess.run(
+        [sys.executable, "-c", _TWO_DEVICES], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
 
 
 # ------------------------------------------------------------------ vector wrappers
