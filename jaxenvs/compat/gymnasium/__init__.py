@@ -45,7 +45,7 @@ from jaxenvs import registry
 from jaxenvs.compat.gymnasium import checks
 from jaxenvs.compat.gymnasium.checks import RENDER_MODES, check_action
 from jaxenvs.compat.gymnasium.programs import BASE_INFO_KEYS, CACHE_SIZE, compiled
-from jaxenvs.compat.gymnasium.vector import DECLARED_MODES, JaxVectorEnv
+from jaxenvs.compat.gymnasium.vector import JaxVectorEnv
 from jaxenvs.compat.gymnasium.words import SEQUENTIAL_BYTES, Bufs
 from jaxenvs.core import Env, State
 
@@ -98,7 +98,7 @@ class JaxEnv(gymnasium.Env):
       **overrides: fields of the task's config.
     """
 
-    metadata: dict[str, Any] = {"render_modes": DECLARED_MODES, "render_fps": 50}
+    metadata: dict[str, Any] = {"render_modes": checks.DECLARED_MODES, "render_fps": 50}
 
     def __init__(
         self,

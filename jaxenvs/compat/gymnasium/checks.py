@@ -11,6 +11,9 @@ from gymnasium.vector import AutoresetMode
 from jaxenvs.core import Env
 
 RENDER_MODES = ["rgb_array"]
+#: what the entry points declare to ``gymnasium.make``: "human" is listed so that it reaches
+#: the constructor (which explains what to do) instead of being silently rerouted.
+DECLARED_MODES = ["rgb_array", "human"]
 
 
 def _space_text(env: Env, num_envs: int | None = None) -> str:

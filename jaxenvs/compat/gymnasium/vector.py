@@ -16,10 +16,6 @@ from jaxenvs.compat.gymnasium.programs import compiled
 from jaxenvs.compat.gymnasium.words import Bufs
 from jaxenvs.core import Env, State
 
-#: what the entry points declare to ``gymnasium.make``: "human" is listed so that it reaches
-#: the constructor (which explains what to do) instead of being silently rerouted.
-DECLARED_MODES = ["rgb_array", "human"]
-
 
 class JaxVectorEnv(VectorEnv):
     """``num_envs`` copies of a jaxenvs task as a ``gymnasium.vector.VectorEnv``.
@@ -58,7 +54,7 @@ class JaxVectorEnv(VectorEnv):
 
     metadata: dict[str, Any] = {
         "autoreset_mode": AutoresetMode.NEXT_STEP,
-        "render_modes": DECLARED_MODES,
+        "render_modes": checks.DECLARED_MODES,
         "render_fps": 50,
     }
 
