@@ -3,7 +3,8 @@
 Single env: ``gymnasium.make("jaxenvs/ID")`` (with the wrappers ``make`` adds) and the raw
 ``JaxEnv``, against ``gymnasium.make(PEER)``, as shipped (MuJoCo's Python bindings time every
 step's stages) and with MuJoCo's timers off, as our native engine leaves them. Vector:
-``gymnasium.make_vec("jaxenvs/ID", N, "vector_entry_point")`` against
+``gymnasium.make_vec("jaxenvs/ID", N, "vector_entry_point")`` (auto-reset NEXT_STEP, the
+default, and SAME_STEP) against
 ``gymnasium.make_vec(PEER, N, "sync")`` (``SyncVectorEnv``), the same two ways. Random
 actions, drawn before timing; episodes end and reset as they do in use. Rounds alternate
 ours and the peer so that machine noise hits both alike; the best round is reported (and
@@ -103,12 +104,17 @@ def bench_task(
     ours_vec = gym.make_vec(f"jaxenvs/{env_id}", num_envs, vectorization_mode="vector_entry_point")
     time_vector(ours_vec, 1)
     first_vec = time.perf_counter() - t0
+    same_vec = gym.make_vec(
+        f"jaxenvs/{env_id}", num_envs, "vector_entry_point", autoreset_mode="same_step"
+    )
+    time_vector(same_vec, 1)
     single: dict[str, Callable[[], float]] = {
         "ours (gym.make)": lambda: time_single(ours, steps),
         "ours (raw JaxEnv)": lambda: time_single(raw, steps),
     }
     vector: dict[str, Callable[[], float]] = {
-        f"ours make_vec x{num_envs}": lambda: time_vector(ours_vec, vec_steps)
+        f"ours make_vec x{num_envs}": lambda: time_vector(ours_vec, vec_steps),
+        f"ours make_vec x{num_envs}, SAME_STEP": lambda: time_vector(same_vec, vec_steps),
     }
     if peer is not None:
         peer_env = gym.make(peer)
@@ -128,7 +134,7 @@ def bench_task(
         "single": _rounds(single, rounds),
         "vector": _rounds(vector, rounds),
     }
-    for env in (ours, raw, ours_vec):
+    for env in (ours, raw, ours_vec, same_vec):
         env.close()
     return result
 
