@@ -376,7 +376,7 @@ def test_unknown_autoreset_mode_is_refused(given):
         facade.JaxVectorEnv("CartPole-v0", num_envs=2, autoreset_mode=given)
 
 
-def _assert_same_step_result(ours, ref, resetting):
+def _assert_steps_agree(ours, ref, resetting):
     """Our step equals the reference's, except the fresh starts of ``resetting`` envs."""
     o_obs, o_rew, o_term, o_trunc, o_info = ours
     r_obs, r_rew, r_term, r_trunc, r_info = ref
@@ -389,6 +389,10 @@ def _assert_same_step_result(ours, ref, resetting):
     for key in r_info:
         if key.startswith("_"):
             np.testing.assert_array_equal(o_info[key], r_info[key])
+        elif key not in ("final_obs", "final_info"):
+            mask = r_info[f"_{key}"]
+            assert o_info[key].dtype == r_info[key].dtype
+            np.testing.assert_allclose(o_info[key][mask], r_info[key][mask], atol=1e-6)
 
 
 def test_next_step_autoreset_matches_sync_vector_env():
@@ -402,7 +406,7 @@ def test_next_step_autoreset_matches_sync_vector_env():
     for _ in range(3 * SHORT):
         actions = rng.integers(0, 2, N)
         out, expected = ours.step(actions), ref.step(actions)
-        _assert_same_step_result(out, expected, resetting=ended)
+        _assert_steps_agree(out, expected, resetting=ended)
         obs, rewards, terminated, truncated, info = out
         if ended.any():
             seen_resets += 1
@@ -472,7 +476,7 @@ def test_same_step_autoreset_matches_sync_vector_env():
         actions = rng.integers(0, 2, N)
         out, expected = ours.step(actions), ref.step(actions)
         done = out[2] | out[3]
-        _assert_same_step_result(out, expected, resetting=done)
+        _assert_steps_agree(out, expected, resetting=done)
         obs, info, s_info = out[0], out[4], expected[4]
         if not done.any():
             assert "final_obs" not in info
@@ -505,7 +509,7 @@ def test_disabled_autoreset_matches_sync_vector_env():
     for _ in range(3 * SHORT):
         actions = rng.integers(0, 2, N)
         out, expected = ours.step(actions), ref.step(actions)
-        _assert_same_step_result(out, expected, resetting=np.zeros(N, bool))
+        _assert_steps_agree(out, expected, resetting=np.zeros(N, bool))
         done = out[2] | out[3]
         if done.any():
             resets += 1
