@@ -20,13 +20,13 @@ and one device-to-host copy per step for all envs, ``AutoresetMode.NEXT_STEP`` b
 ``DISABLED`` by keyword.
 
 Both keep their state in one representation, :class:`~jaxenvs.compat.gymnasium.words.Words`:
-a few flat buffers of 32-bit words, donated to each step's jitted call, with the leaves
-the host reads (observation, reward, flags, info) first, so a step's results are read from
-the first buffer of the new state. One env's buffers hold at most :data:`SEQUENTIAL_BYTES`
-each, which keeps XLA's CPU runtime on the calling thread, where a single small env's step
-costs ~3x less. The jitted functions are built once per task config and batch, and shared
-by the instances made while they stay in a bounded cache
-(:mod:`~jaxenvs.compat.gymnasium.programs`).
+a few flat buffers of 32-bit words, which each step's jitted call takes (and donates, but
+for a SAME_STEP vector env's), with the leaves the host reads (observation, reward, flags,
+info) first, so a step's results are read from the first buffer of the new state. One
+env's buffers hold at most :data:`SEQUENTIAL_BYTES` each, which keeps XLA's CPU runtime on
+the calling thread, where a single small env's step costs ~3x less. The jitted functions
+are built once per task config and batch, and shared by the instances made while they stay
+in a bounded cache (:mod:`~jaxenvs.compat.gymnasium.programs`).
 
 Info keys (single env values are Python scalars, vector values arrays with ``_key``
 masks): ``nan_actions``, ``diverged`` and the task's metrics (e.g. ``distance``).
