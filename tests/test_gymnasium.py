@@ -655,6 +655,8 @@ def test_reward_vector_wrappers_see_next_step_rewards():
 
 
 def test_clip_action_vector_wrapper():
+    """Out-of-range actions through ClipAction step as their clipped values do; the step
+    after the episodes end resets them (reward 0)."""
     steps = SHORT + 2
     rng = np.random.default_rng(3)
     big = [rng.uniform(-3, 3, (N, 2)).astype(np.float32) for _ in range(steps)]
