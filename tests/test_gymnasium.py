@@ -20,6 +20,7 @@ from gymnasium.vector import AutoresetMode
 import jaxenvs
 from jaxenvs import registry
 from jaxenvs.compat import gymnasium as facade
+from jaxenvs.compat.gymnasium import programs
 from jaxenvs.tasks import cartpole
 
 SHORT = 5  # episode length of the short-episode fixtures
@@ -560,8 +561,6 @@ def test_vector_seeding_and_bad_input(short_vec):
 
 
 def test_compiled_functions_cache_is_bounded(monkeypatch):
-    from jaxenvs.compat.gymnasium import programs
-
     monkeypatch.setattr(programs, "CACHE_SIZE", 2)
     monkeypatch.setattr(programs, "_CACHE", programs._CACHE.__class__())
     first = facade.compiled("CartPole-v0", {"force": 1.0})
