@@ -3,7 +3,8 @@
 Single env: ``gymnasium.make("jaxenvs/ID")`` (with the wrappers ``make`` adds) and the raw
 ``JaxEnv``, against ``gymnasium.make(PEER)``, as shipped (MuJoCo's Python bindings time every
 step's stages) and with MuJoCo's timers off, as our native engine leaves them. Vector:
-``gymnasium.make_vec("jaxenvs/ID", N, "vector_entry_point")`` against
+``gymnasium.make_vec("jaxenvs/ID", N, "vector_entry_point")`` (auto-reset NEXT_STEP, the
+default, and SAME_STEP) against
 ``gymnasium.make_vec(PEER, N, "sync")`` (``SyncVectorEnv``), the same two ways. Random
 actions, drawn before timing; episodes end and reset as they do in use. Rounds alternate
 ours and the peer so that machine noise hits both alike; the best round is reported (and
@@ -29,6 +30,8 @@ import jaxenvs  # noqa: F401  (registers jaxenvs/<id>)
 from jaxenvs.physics import native
 
 PEERS = {"CartPole-v0": "CartPole-v1", "Reacher-v0": "Reacher-v5"}
+#: the suffix of the vector env's row in auto-reset mode SAME_STEP (NEXT_STEP is the default)
+SAME_STEP = "SAME_STEP"
 
 
 def _actions(space: gym.Space, count: int, seed: int) -> list[Any]:
@@ -103,12 +106,19 @@ def bench_task(
     ours_vec = gym.make_vec(f"jaxenvs/{env_id}", num_envs, vectorization_mode="vector_entry_point")
     time_vector(ours_vec, 1)
     first_vec = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    same_vec = gym.make_vec(
+        f"jaxenvs/{env_id}", num_envs, "vector_entry_point", autoreset_mode="same_step"
+    )
+    time_vector(same_vec, 1)
+    first_same = time.perf_counter() - t0
     single: dict[str, Callable[[], float]] = {
         "ours (gym.make)": lambda: time_single(ours, steps),
         "ours (raw JaxEnv)": lambda: time_single(raw, steps),
     }
     vector: dict[str, Callable[[], float]] = {
-        f"ours make_vec x{num_envs}": lambda: time_vector(ours_vec, vec_steps)
+        f"ours make_vec x{num_envs}": lambda: time_vector(ours_vec, vec_steps),
+        f"ours make_vec x{num_envs}, {SAME_STEP}": lambda: time_vector(same_vec, vec_steps),
     }
     if peer is not None:
         peer_env = gym.make(peer)
@@ -124,11 +134,11 @@ def bench_task(
         "task": env_id,
         "peer": peer,
         "num_envs": num_envs,
-        "first_call_s": {"single": first_single, "vector": first_vec},
+        "first_call_s": {"single": first_single, "vector": first_vec, "same_step": first_same},
         "single": _rounds(single, rounds),
         "vector": _rounds(vector, rounds),
     }
-    for env in (ours, raw, ours_vec):
+    for env in (ours, raw, ours_vec, same_vec):
         env.close()
     return result
 
@@ -145,7 +155,8 @@ def report(result: dict[str, Any]) -> None:
             print(f"  {kind:6s}  ours/{peer}: {best[names[0]] / best[peer]:.2f}x")
     print(
         f"  first call (compile) single {result['first_call_s']['single']:.1f} s, "
-        f"vector {result['first_call_s']['vector']:.1f} s"
+        f"vector {result['first_call_s']['vector']:.1f} s, "
+        f"vector SAME_STEP {result['first_call_s']['same_step']:.1f} s"
     )
 
 
@@ -178,6 +189,7 @@ def rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
         for mode in ("single", "vector"):
             for who, rounds in r[mode].items():
                 ours = who.startswith("ours")
+                first = "same_step" if who.endswith(SAME_STEP) else mode
                 out.append(
                     {
                         "task": r["task"],
@@ -186,7 +198,7 @@ def rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
                         "who": who,
                         "num_envs": 1 if mode == "single" else r["num_envs"],
                         "steps_per_s_rounds": rounds,
-                        "first_call_s": r["first_call_s"][mode] if ours else None,
+                        "first_call_s": r["first_call_s"][first] if ours else None,
                     }
                 )
     return out

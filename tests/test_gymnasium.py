@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import os
+import subprocess
+import sys
 
 import gymnasium as gym
 import jax
@@ -17,6 +20,7 @@ from gymnasium.vector import AutoresetMode
 import jaxenvs
 from jaxenvs import registry
 from jaxenvs.compat import gymnasium as facade
+from jaxenvs.compat.gymnasium import programs
 from jaxenvs.tasks import cartpole
 
 SHORT = 5  # episode length of the short-episode fixtures
@@ -289,11 +293,53 @@ def test_record_video(tmp_path):
 
 
 # ------------------------------------------------------------------------ vector env
+def _vec(mode=None, env_id="CartPole-v0", num_envs=N, **kwargs):
+    extra = {} if mode is None else {"autoreset_mode": mode}
+    return gym.make_vec(
+        f"jaxenvs/{env_id}",
+        num_envs=num_envs,
+        vectorization_mode="vector_entry_point",
+        max_episode_steps=SHORT,
+        **extra,
+        **kwargs,
+    )
+
+
+def _reference(mode, env_id="CartPole-v0", num_envs=N, **kwargs):
+    """Gymnasium's own SyncVectorEnv over our single envs, in ``mode``."""
+    return gym.vector.SyncVectorEnv(
+        [lambda: facade.JaxEnv(env_id, episode_length=SHORT, **kwargs)] * num_envs,
+        autoreset_mode=mode,
+    )
+
+
+def _copy_states(ours, ref, which):
+    """Put our vector env's states of the envs in ``which`` into the reference's envs."""
+    state = ours.unwrapped.state
+    for i in np.flatnonzero(which):
+        single = ref.envs[i]
+        single._bufs = jax.jit(single._words.pack)(jax.tree.map(lambda x, i=i: x[i], state))
+
+
+def _staggered(ours, ref, seed):
+    """Reset both, then reset envs 1 and 3 again after two steps, so episodes end at
+    different steps; the reference takes our states."""
+    ours.reset(seed=seed)
+    ref.reset(seed=seed)
+    for _ in range(2):
+        ours.step(np.ones(N, np.int64))
+        ref.step(np.ones(N, np.int64))
+    mask = np.array([False, True, False, True])
+    ours.reset(options={"reset_mask": mask})
+    ref.reset(options={"reset_mask": mask.copy()})
+    _copy_states(ours, ref, np.ones(N, bool))
+
+
 def test_make_vec_is_one_batched_env(short_vec):
     raw = short_vec.unwrapped
     assert isinstance(raw, facade.JaxVectorEnv)
     assert isinstance(raw, gym.vector.VectorEnv)
-    assert short_vec.metadata["autoreset_mode"] is AutoresetMode.SAME_STEP
+    assert short_vec.metadata["autoreset_mode"] is AutoresetMode.NEXT_STEP
     assert raw.jax_env.config.episode_length == SHORT  # from max_episode_steps
     assert short_vec.observation_space.shape == (N, 4)
     assert short_vec.single_action_space == gym.spaces.Discrete(2)
@@ -310,39 +356,176 @@ def test_make_vec_is_one_batched_env(short_vec):
     assert rewards.shape == (N,) and terminated.dtype == np.bool_ and truncated.dtype == np.bool_
 
 
-def test_same_step_autoreset_matches_sync_vector_env(short_vec):
-    """Our infos have the structure SyncVectorEnv gives in SAME_STEP mode."""
-    sync = gym.vector.SyncVectorEnv(
-        [lambda: facade.JaxEnv("CartPole-v0", episode_length=SHORT)] * N,
-        autoreset_mode=AutoresetMode.SAME_STEP,
+@pytest.mark.parametrize(
+    "given, mode",
+    [
+        ("same_step", AutoresetMode.SAME_STEP),
+        ("SameStep", AutoresetMode.SAME_STEP),
+        (AutoresetMode.DISABLED, AutoresetMode.DISABLED),
+        ("next_step", AutoresetMode.NEXT_STEP),
+    ],
+)
+def test_autoreset_mode_by_keyword(given, mode):
+    envs = _vec(given)
+    assert envs.metadata["autoreset_mode"] is mode
+    envs.close()
+
+
+@pytest.mark.parametrize("given", ["sometimes", 1, None])
+def test_unknown_autoreset_mode_is_refused(given):
+    with pytest.raises(ValueError, match=r"autoreset_mode must be .*next_step.*same_step"):
+        facade.JaxVectorEnv("CartPole-v0", num_envs=2, autoreset_mode=given)
+
+
+def _assert_steps_agree(ours, ref, resetting):
+    """Our step equals the reference's, except the fresh starts of ``resetting`` envs."""
+    o_obs, o_rew, o_term, o_trunc, o_info = ours
+    r_obs, r_rew, r_term, r_trunc, r_info = ref
+    np.testing.assert_array_equal(o_term, r_term)
+    np.testing.assert_array_equal(o_trunc, r_trunc)
+    np.testing.assert_allclose(o_rew, r_rew, atol=1e-6)
+    assert o_rew.dtype == r_rew.dtype == np.float64
+    np.testing.assert_allclose(o_obs[~resetting], r_obs[~resetting], atol=1e-5)
+    assert sorted(o_info) == sorted(r_info)
+    for key in r_info:
+        if key.startswith("_"):
+            np.testing.assert_array_equal(o_info[key], r_info[key])
+        elif key not in ("final_obs", "final_info"):
+            mask = r_info[f"_{key}"]
+            assert o_info[key].dtype == r_info[key].dtype
+            np.testing.assert_allclose(o_info[key][mask], r_info[key][mask], atol=1e-6)
+
+
+def test_next_step_autoreset_matches_sync_vector_env():
+    """NEXT_STEP: an env that ends at t returns its last obs at t; at t+1 its action is
+    ignored and it returns a fresh start, reward 0, both flags False and no info."""
+    ours, ref = _vec(), _reference(AutoresetMode.NEXT_STEP)
+    _staggered(ours, ref, seed=4)
+    ended = np.zeros(N, bool)
+    seen_resets = 0
+    rng = np.random.default_rng(0)
+    for _ in range(3 * SHORT):
+        actions = rng.integers(0, 2, N)
+        out, expected = ours.step(actions), ref.step(actions)
+        _assert_steps_agree(out, expected, resetting=ended)
+        obs, rewards, terminated, truncated, info = out
+        if ended.any():
+            seen_resets += 1
+            assert (rewards[ended] == 0).all() and not (terminated | truncated)[ended].any()
+            assert np.abs(obs[ended]).max() <= 0.05 + 1e-6  # fresh CartPole starts
+            for key in ("nan_actions", "diverged"):
+                if key in info:
+                    assert not info[f"_{key}"][ended].any()
+            _copy_states(ours, ref, ended)
+        ended = terminated | truncated
+    assert seen_resets >= 3
+    ours.close()
+    ref.close()
+
+
+def test_next_step_starts_where_same_step_starts():
+    """A fresh start is drawn with the env's own key: NEXT_STEP's new episode starts, one
+    step later, where SAME_STEP's does."""
+    nxt, same = _vec(), _vec("same_step")
+    nxt.reset(seed=8)
+    same.reset(seed=8)
+    actions = np.array([1, 0, 0, 1])
+    for _ in range(SHORT):
+        last_obs, _, _, truncated, _ = nxt.step(actions)
+        fresh_obs, _, _, _, info = same.step(actions)
+    assert truncated.all() and info["_final_obs"].all()
+    np.testing.assert_allclose(np.stack(info["final_obs"]), last_obs, atol=1e-6)
+    np.testing.assert_allclose(nxt.step(actions)[0], fresh_obs, atol=1e-6)
+    nxt.close()
+    same.close()
+
+
+def test_randomized_next_step_draws_params_as_same_step():
+    """With domain randomisation a NEXT_STEP reset draws new params, the ones SAME_STEP
+    draws for the same env one step earlier."""
+    nxt, same = _vec(randomize=True), _vec("same_step", randomize=True)
+    nxt.reset(seed=3)
+    same.reset(seed=3)
+    first = nxt.unwrapped.state.params
+    actions = np.ones(N, np.int64)
+    for _ in range(SHORT):
+        nxt.step(actions)
+        same.step(actions)
+    kept = nxt.unwrapped.state.params
+    nxt.step(actions)  # resets every env
+    drawn, reference = nxt.unwrapped.state.params, same.unwrapped.state.params
+    first, kept, drawn, reference = (
+        [np.asarray(x) for x in jax.tree.leaves(p)] for p in (first, kept, drawn, reference)
     )
-    ours = short_vec
-    ours.reset(seed=1)
-    sync.reset(seed=1)
-    actions = np.array([1, 0, 1, 0])
-    for _ in range(SHORT - 1):
-        obs, _, terminated, truncated, info = ours.step(actions)
-        sync.step(actions)
-        assert "final_obs" not in info and not (terminated | truncated).any()
-    prev_state = ours.unwrapped.state
-    obs, _, terminated, truncated, info = ours.step(actions)
-    _, _, s_term, s_trunc, s_info = sync.step(actions)
-    assert truncated.all() and not terminated.any()
-    assert sorted(info) == sorted(s_info)
-    assert sorted(info["final_info"]) == sorted(s_info["final_info"])
-    assert info["final_obs"].dtype == s_info["final_obs"].dtype == object
-    np.testing.assert_array_equal(info["_final_obs"], s_info["_final_obs"])
-    fin, s_fin = info["final_info"], s_info["final_info"]
-    np.testing.assert_array_equal(fin["_diverged"], s_fin["_diverged"])
-    np.testing.assert_array_equal(fin["nan_actions"], s_fin["nan_actions"])
-    # final_obs is where the episode ended; obs is the fresh start of the next one
-    env = ours.unwrapped.jax_env
-    expected = jax.jit(jax.vmap(env.step))(prev_state, jnp.asarray(actions, jnp.int32)).obs
-    for i in range(N):
-        np.testing.assert_allclose(info["final_obs"][i], np.asarray(expected[i]), atol=1e-6)
-        assert not np.allclose(obs[i], info["final_obs"][i])
-    assert np.abs(obs).max() <= 0.05 + 1e-6  # fresh CartPole starts lie in +-0.05
-    sync.close()
+    for a, b, c, d in zip(first, kept, drawn, reference, strict=True):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(c, d)
+    assert any(not np.array_equal(a, c) for a, c in zip(first, drawn, strict=True))
+    nxt.close()
+    same.close()
+
+
+def test_same_step_autoreset_matches_sync_vector_env():
+    """SAME_STEP: an env that ends at t returns a fresh start at t; its last obs and info
+    are in final_obs / final_info, with the structure SyncVectorEnv gives."""
+    ours, ref = _vec("same_step"), _reference(AutoresetMode.SAME_STEP)
+    _staggered(ours, ref, seed=5)
+    rng = np.random.default_rng(1)
+    ends = 0
+    for _ in range(2 * SHORT):
+        prev_state = ours.unwrapped.state
+        actions = rng.integers(0, 2, N)
+        out, expected = ours.step(actions), ref.step(actions)
+        done = out[2] | out[3]
+        _assert_steps_agree(out, expected, resetting=done)
+        obs, info, s_info = out[0], out[4], expected[4]
+        if not done.any():
+            assert "final_obs" not in info
+            continue
+        ends += 1
+        assert sorted(info["final_info"]) == sorted(s_info["final_info"])
+        assert info["final_obs"].dtype == s_info["final_obs"].dtype == object
+        env = ours.unwrapped.jax_env
+        last = jax.jit(jax.vmap(env.step))(prev_state, jnp.asarray(actions, jnp.int32)).obs
+        for i in range(N):
+            if done[i]:
+                np.testing.assert_allclose(info["final_obs"][i], s_info["final_obs"][i], atol=1e-5)
+                np.testing.assert_allclose(info["final_obs"][i], np.asarray(last[i]), atol=1e-6)
+                assert np.abs(obs[i]).max() <= 0.05 + 1e-6
+            else:
+                assert info["final_obs"][i] is None
+        _copy_states(ours, ref, done)
+    assert ends >= 2
+    ours.close()
+    ref.close()
+
+
+def test_disabled_autoreset_matches_sync_vector_env():
+    """DISABLED: no auto-reset; a finished env must be reset through reset_mask before
+    the next step."""
+    ours, ref = _vec("disabled"), _reference(AutoresetMode.DISABLED)
+    _staggered(ours, ref, seed=6)
+    rng = np.random.default_rng(2)
+    resets = 0
+    for _ in range(3 * SHORT):
+        actions = rng.integers(0, 2, N)
+        out, expected = ours.step(actions), ref.step(actions)
+        _assert_steps_agree(out, expected, resetting=np.zeros(N, bool))
+        done = out[2] | out[3]
+        if done.any():
+            resets += 1
+            with pytest.raises(ResetNeeded, match="reset_mask"):
+                ours.step(actions)
+            kept = ours.unwrapped.state.obs
+            obs, info = ours.reset(options={"reset_mask": done})
+            ref.reset(options={"reset_mask": done.copy()})
+            assert info == {}
+            np.testing.assert_array_equal(obs[~done], np.asarray(kept)[~done])
+            assert np.abs(obs[done]).max() <= 0.05 + 1e-6
+            _copy_states(ours, ref, done)
+    assert resets >= 3
+    ours.close()
+    ref.close()
 
 
 def test_reset_mask_resets_a_subset(short_vec):
@@ -377,13 +560,136 @@ def test_vector_seeding_and_bad_input(short_vec):
     fresh.close()
 
 
-def test_vector_episode_statistics_wrapper(short_vec):
-    envs = gym.wrappers.vector.RecordEpisodeStatistics(short_vec)
+def test_compiled_functions_cache_is_bounded(monkeypatch):
+    monkeypatch.setattr(programs, "CACHE_SIZE", 2)
+    monkeypatch.setattr(programs, "_CACHE", programs._CACHE.__class__())
+    first = facade.compiled("CartPole-v0", {"force": 1.0})
+    assert facade.compiled("CartPole-v0", {"force": 1.0}) is first
+    facade.compiled("CartPole-v0", {"force": 2.0})
+    facade.compiled("CartPole-v0", {"force": 3.0})
+    assert len(programs._CACHE) == 2
+    assert facade.compiled("CartPole-v0", {"force": 1.0}) is not first
+
+
+_TWO_DEVICES = """
+import numpy as np, gymnasium as gym, jaxenvs
+runs = {}
+for devices in (2, 1):
+    envs = gym.make_vec("jaxenvs/CartPole-v0", num_envs=4, vectorization_mode="vector_entry_point",
+                        max_episode_steps=5, devices=devices, physics="c")
+    assert envs.unwrapped._fns.batched.devices == devices
+    seq = [envs.reset(seed=0)[0]]
+    for _ in range(12):
+        obs, reward, *_ = envs.step(np.ones(4, np.int64))
+        seq += [obs, np.repeat(reward[:, None], 4, 1)]
+    seq.append(envs.reset(options={"reset_mask": np.array([True, False, True, False])})[0])
+    runs[devices] = np.concatenate(seq)
+np.testing.assert_array_equal(runs[2], runs[1])
+"""
+
+
+@pytest.mark.full  # a 2-device subprocess
+def test_next_step_vector_env_spread_over_devices_is_bit_identical():
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    env.pop("JAX_NUM_CPU_DEVICES", None)
+    proc = subprocess.run(
+        [sys.executable, "-c", _TWO_DEVICES], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+
+
+# ------------------------------------------------------------------ vector wrappers
+def _episode_run(envs, steps, seed=0, actions=None):
+    """Steps of ``envs`` (default NEXT_STEP), as lists of arrays, after reset(seed)."""
+    obs, _ = envs.reset(seed=seed)
+    out = {"obs": [obs], "reward": [], "done": [], "info": []}
+    for t in range(steps):
+        a = np.ones(envs.num_envs, np.int64) if actions is None else actions[t]
+        obs, reward, terminated, truncated, info = envs.step(a)
+        out["obs"].append(obs)
+        out["reward"].append(reward)
+        out["done"].append(terminated | truncated)
+        out["info"].append(info)
+    return out
+
+
+def test_normalize_observation_vector_wrapper():
+    steps = 2 * SHORT + 2
+    envs = gym.wrappers.vector.NormalizeObservation(_vec(), epsilon=1e-8)
+    raw = _episode_run(_vec(), steps)
+    got = _episode_run(envs, steps)
+    seen = np.concatenate(raw["obs"])
+    rms = envs.obs_rms
+    np.testing.assert_allclose(rms.mean, seen.mean(axis=0), rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(rms.count, len(seen) + 1e-4)
+    expected = (raw["obs"][-1] - rms.mean) / np.sqrt(rms.var + 1e-8)
+    np.testing.assert_allclose(got["obs"][-1], expected, rtol=1e-4, atol=1e-4)
+
+
+def test_transform_and_dtype_observation_vector_wrappers():
+    steps = SHORT + 2
+    raw = _episode_run(_vec(), steps)
+    doubled = gym.wrappers.vector.TransformObservation(_vec(), lambda obs: 2 * obs)
+    as64 = gym.wrappers.vector.DtypeObservation(_vec(), np.float64)
+    np.testing.assert_array_equal(
+        np.stack(_episode_run(doubled, steps)["obs"]), 2 * np.stack(raw["obs"])
+    )
+    got64 = np.stack(_episode_run(as64, steps)["obs"])
+    assert got64.dtype == np.float64
+    np.testing.assert_array_equal(got64, np.stack(raw["obs"]))
+
+
+def test_reward_vector_wrappers_see_next_step_rewards():
+    """CartPole pays 1 a step and, under NEXT_STEP, 0 on the step that resets an env:
+    NormalizeReward and ClipReward give what they give over SyncVectorEnv."""
+    steps = 3 * SHORT
+    for wrap in (
+        lambda e: gym.wrappers.vector.NormalizeReward(e, gamma=0.9),
+        lambda e: gym.wrappers.vector.ClipReward(e, 0.0, 0.5),
+    ):
+        got = _episode_run(wrap(_vec()), steps)
+        ref = _episode_run(wrap(_reference(AutoresetMode.NEXT_STEP)), steps)
+        np.testing.assert_allclose(np.stack(got["reward"]), np.stack(ref["reward"]), rtol=1e-6)
+        assert (np.stack(got["reward"])[SHORT] == 0).all()  # the reset step
+
+
+def test_clip_action_vector_wrapper():
+    """Out-of-range actions through ClipAction step as their clipped values do; the step
+    after the episodes end resets them (reward 0)."""
+    steps = SHORT + 2
+    rng = np.random.default_rng(3)
+    big = [rng.uniform(-3, 3, (N, 2)).astype(np.float32) for _ in range(steps)]
+    clipped = [np.clip(a, -1, 1) for a in big]
+    wrapped = gym.wrappers.vector.ClipAction(_vec(None, "Reacher-v0", physics="c"))
+    got = _episode_run(wrapped, steps, actions=big)
+    ref = _episode_run(_vec(None, "Reacher-v0", physics="c"), steps, actions=clipped)
+    np.testing.assert_array_equal(np.stack(got["obs"]), np.stack(ref["obs"]))
+    assert (np.stack(got["reward"])[SHORT] == 0).all()  # the reset step
+
+
+def test_record_episode_statistics_vector_wrapper():
+    """Recorded returns and lengths are each episode's summed step rewards and steps
+    (Reacher: rewards vary from step to step)."""
+    base = _vec(None, "Reacher-v0", physics="c")
+    envs = gym.wrappers.vector.RecordEpisodeStatistics(base)
     envs.reset(seed=0)
-    for _ in range(SHORT):
-        *_, info = envs.step(np.ones(N, np.int64))
-    assert info["_episode"].all()
-    np.testing.assert_array_equal(info["episode"]["l"], np.full(N, SHORT))
+    rng = np.random.default_rng(4)
+    sums, lengths, resetting = np.zeros(N), np.zeros(N, int), np.zeros(N, bool)
+    recorded = 0
+    for _ in range(3 * SHORT):
+        action = rng.uniform(-1, 1, (N, 2)).astype(np.float32)
+        _, reward, terminated, truncated, info = envs.step(action)
+        sums = np.where(resetting, 0.0, sums + reward)
+        lengths = np.where(resetting, 0, lengths + 1)
+        done = terminated | truncated
+        assert ("episode" in info) == done.any()
+        if done.any():
+            recorded += done.sum()
+            np.testing.assert_array_equal(info["_episode"], done)
+            np.testing.assert_allclose(info["episode"]["r"][done], sums[done], rtol=1e-6)
+            np.testing.assert_array_equal(info["episode"]["l"][done], lengths[done])
+        resetting = done
+    assert recorded >= 2 * N
 
 
 # ----------------------------------------------------------------- Stable-Baselines3
