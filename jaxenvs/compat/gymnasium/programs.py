@@ -24,7 +24,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 from jaxenvs import registry
 from jaxenvs.compat.gymnasium.words import Bufs, Words
 from jaxenvs.core import BatchedEnv, Env, State
-from jaxenvs.devices import ENV_AXIS
+from jaxenvs.core.placement import ENV_AXIS
 
 #: info keys every env reports besides its task metrics.
 BASE_INFO_KEYS = ("nan_actions", "diverged")
