@@ -162,8 +162,8 @@ def apply_overrides(config: C, overrides: Mapping[str, Any], source: str) -> C:
 
 def name_some(keys: list[Any]) -> str:
     """``keys`` as an error message lists them: the first :data:`SHOWN_KEYS`, each cut to
-    40 characters, then how many more there are."""
-    shown = [repr(k) if len(repr(k)) <= 40 else repr(k)[:37] + "..." for k in keys[:SHOWN_KEYS]]
+    128 characters, then how many more there are."""
+    shown = [repr(k) if len(repr(k)) <= 128 else repr(k)[:125] + "..." for k in keys[:SHOWN_KEYS]]
     more = len(keys) - len(shown)
     return ", ".join(shown) + (f" and {more} more" if more else "")
 

@@ -31,8 +31,8 @@ sys.path.insert(0, str(EXAMPLE))
 import my_pendulum  # noqa: E402,F401  (registers MyPendulum-v0)
 
 import jaxenvs  # noqa: E402
-from jaxenvs import viewer  # noqa: E402
 from jaxenvs.cli import main  # noqa: E402
+from jaxenvs.render import viewer  # noqa: E402
 
 ID = "MyPendulum-v0"
 
