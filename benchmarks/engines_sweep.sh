@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The physics="auto" sweep: every task under both engines (and mujoco.rollout on our MJCF
 # beside them) at 1 to 16,384 envs, in one run; the figures behind the auto rule in
-# jaxenvs.core.CPU_AUTO and RESULTS.md's engine tables.
+# the tasks' cpu_mjx_from (jaxenvs.physics.resolve_engine) and RESULTS.md's engine tables.
 #     bash benchmarks/engines_sweep.sh SUFFIX [TASK...]   e.g. cpu2, cpu16
 # writes benchmarks/results/engines_sweep_SUFFIX_<task>.json; raw output in $OUT (./out)
 set -uo pipefail

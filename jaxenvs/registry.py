@@ -167,7 +167,7 @@ def make(
       randomize: with ``num_envs``, draw per-env params at every reset.
       devices: with ``num_envs``, how many local devices the batch is spread over
         (default: all that ``num_envs`` divides over; ``1``: none; see
-        :func:`jaxenvs.core.batch_devices`).
+        :func:`jaxenvs.core.placement.batch_devices`).
       **overrides: any field of the task's config (``episode_length=500``,
         ``physics="c"``, ...); an unknown key raises :class:`ConfigError` listing the
         valid ones. ``physics`` is resolved for this batch size

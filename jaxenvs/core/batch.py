@@ -1,0 +1,136 @@
+"""The batched env: ``num_envs`` copies of an :class:`~jaxenvs.core.env.Env` stepped by one
+vmapped function, with fresh random auto-resets."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from jaxenvs.core import placement
+from jaxenvs.core.env import Env, Params, State, check_key, check_state
+
+
+class BatchedEnv:
+    """``num_envs`` copies of an :class:`Env` stepped by one vmapped function.
+
+    Finished envs (terminated or truncated) come back already reset to a FRESH random
+    initial state drawn with that env's own key; the finished episode's last observation,
+    return and length stay in ``info["final_obs"]``, ``info["final_return"]`` and
+    ``info["final_length"]``, and ``reward``/``terminated``/``truncated`` still describe
+    the transition that ended it. With ``randomize=True`` each env draws its own params
+    from ``env.sample_params`` at every reset (domain randomisation).
+
+    **Devices.** The batch is spread over the local devices that
+    :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
+    ``reset`` and ``step`` keep every state leaf's env axis split over a 1-D mesh
+    (:func:`jaxenvs.core.placement.spread`), so each device steps its slice of envs. Every
+    env's arithmetic is the same as on one device, so trajectories are bit-identical.
+    """
+
+    def __init__(
+        self, env: Env, num_envs: int, randomize: bool = False, devices: int | None = None
+    ) -> None:
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.env = env
+        self.num_envs = int(num_envs)
+        self.randomize = bool(randomize)
+        n = placement.batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
+        #: the mesh the batch is spread over; ``None`` on one device
+        self.mesh = placement.local_mesh(n)
+
+    @property
+    def devices(self) -> int:
+        """The number of devices the batch is spread over."""
+        return 1 if self.mesh is None else self.mesh.size
+
+    def on_one_device(self) -> BatchedEnv:
+        """The same batch unspread, for callers that place it themselves (e.g. with
+        :func:`jaxenvs.core.sharding.shard_jit`); see :mod:`jaxenvs.core.placement`."""
+        if self.mesh is None:
+            return self
+        return BatchedEnv(self.env, self.num_envs, self.randomize, devices=1)
+
+    def __getattr__(self, name: str) -> Any:
+        raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")
+
+    observation_size = property(lambda self: self.env.observation_size)
+    action_size = property(lambda self: self.env.action_size)
+    observation_space = property(lambda self: self.env.observation_space)
+    action_space = property(lambda self: self.env.action_space)
+    discrete = property(lambda self: self.env.discrete)
+    default_params = property(lambda self: self.env.default_params)
+    episode_length = property(lambda self: self.env.episode_length)
+    config = property(lambda self: self.env.config)
+    scan_unroll = property(lambda self: self.env.scan_unroll)
+
+    def _reset_batch(self, keys: jax.Array, params: Params) -> State:
+        if self.randomize and params is None:
+            keys, pkeys = jnp.moveaxis(jax.vmap(jax.random.split)(keys), 1, 0)
+            params = jax.vmap(self.env.sample_params)(pkeys)
+            state = jax.vmap(self.env.reset)(keys, params)
+            return state.replace(params=params)
+        return jax.vmap(self.env.reset, in_axes=(0, None))(keys, params)
+
+    def reset(self, key: jax.Array, params: Params = None) -> State:
+        """Reset all envs; returns a State with a leading ``num_envs`` axis."""
+        check_key(key, f"batched {type(self.env).__name__}.reset")
+        keys = jax.random.split(key, self.num_envs)
+        if self.mesh is None:
+            return self._reset_batch(keys, params)
+        return placement.spread(
+            self.mesh, lambda k, _, p: self._reset_batch(k, p), keys, (), params
+        )
+
+    def step(self, state: State, action: jax.Array, params: Params = None) -> State:
+        """Step every env, then reset the finished ones (fresh random starts)."""
+        check_state(state, (self.num_envs,), f"batched {type(self.env).__name__}.step")
+        action = jnp.asarray(action)
+        expected = (self.num_envs, *self.env.action_shape)
+        if action.shape != expected:
+            raise ValueError(
+                f"batched {type(self.env).__name__}: expected actions of shape {expected}, "
+                f"got {action.shape}"
+            )
+        return placement.spread(self.mesh, self._step_batch, state, action, params)
+
+    def _step_batch(self, state: State, action: jax.Array, params: Params) -> State:
+        if state.params is not None:
+            nxt = jax.vmap(self.env.step)(state, action, state.params)
+        else:
+            nxt = jax.vmap(self.env.step, in_axes=(0, 0, None))(state, action, params)
+        done = nxt.done
+
+        def reset_done(nxt: State) -> State:
+            fresh = self._reset_batch(nxt.key, params)
+
+            def pick(new: jax.Array, old: jax.Array) -> jax.Array:
+                mask = done.reshape(done.shape + (1,) * (old.ndim - 1))
+                return jnp.where(mask, new, old)
+
+            merged = jax.tree.map(
+                pick,
+                (fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
+                (nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
+            )
+            obs, extras, time, key, new_params = merged
+            data = self.env.sim.select_data(pick, fresh.data, nxt.data)
+            info = dict(nxt.info)
+            info["episode_return"] = jnp.where(done, 0.0, nxt.info["episode_return"])
+            info["episode_length"] = jnp.where(done, 0, nxt.info["episode_length"])
+            return nxt.replace(
+                data=data,
+                obs=obs,
+                extras=extras,
+                time=time,
+                key=key,
+                params=new_params,
+                info=info,
+            )
+
+        return jax.lax.cond(jnp.any(done), reset_done, lambda s: s, nxt)
+
+    def __repr__(self) -> str:
+        return f"BatchedEnv({self.env!r}, num_envs={self.num_envs}, devices={self.devices})"
