@@ -142,7 +142,6 @@ class PPOConfig:
 
 
 #: the config the runner builds when no file is given (``--algo ppo``).
-Config = PPOConfig
 DEFAULT_CONFIG = PPOConfig()
 
 
@@ -496,7 +495,6 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
 
 __all__ = [
     "DEFAULT_CONFIG",
-    "Config",
     "PPOConfig",
     "PolicyParams",
     "RunnerState",
