@@ -83,13 +83,13 @@ class JoystickConfig(HexapodRandomization):
     zero_probability: float = 0.1
     command_interval: int = 100
     lin_weight: float = 1.5
-    lin_sigma: float = 0.05
-    yaw_weight: float = 0.8
-    yaw_sigma: float = 0.15
+    lin_sigma: float = 0.04
+    yaw_weight: float = 1.0
+    yaw_sigma: float = 0.1
     vz_weight: float = 1.0
     spin_weight: float = 0.02
     tilt_weight: float = 1.0
-    action_rate_weight: float = 0.005
+    action_rate_weight: float = 0.03
     energy_weight: float = 0.002
     alive_bonus: float = 0.25
     min_height: float = 0.06
