@@ -201,6 +201,10 @@ def table(run_dirs: list[str]) -> list[dict[str, Any]]:
             "seed": resolved.train.seed,
             "run": run.name,
             "train_seconds": summary["wall_seconds"],
+            # the first chunk's wall: mostly compile (short where the compile cache was warm)
+            "first_chunk_seconds": float(
+                runner.read_progress(run / runner.PROGRESS_FILE)[0]["wall_seconds"]
+            ),
             "env_steps": summary["env_steps"],
             "eval_mean_return": summary["eval_mean_return"],
         }
@@ -231,6 +235,11 @@ def main(argv: list[str] | None = None) -> None:
     tb = sub.add_parser("table", help="per-seed records of evaluated runs")
     tb.add_argument("run_dirs", nargs="+")
     tb.add_argument("--json", metavar="NAME", required=True, help=results_io.HELP)
+    tb.add_argument(
+        "--machine",
+        default="training and the mjx eval on the gpu named; the C eval where table runs",
+        help="where the runs trained and were evaluated (the record's machine description)",
+    )
     args = parser.parse_args(argv)
 
     if args.command == "eval":
@@ -250,7 +259,14 @@ def main(argv: list[str] | None = None) -> None:
     else:
         rows = table(args.run_dirs)
         title = "HexapodJoystick-v0 PPO per seed: train wall, tracking errors, falls"
-        rec = results_io.record(args.json, title, rows, engine="mjx; mujoco_c* fields under C")
+        rec = results_io.record(
+            args.json,
+            title,
+            rows,
+            description=args.machine,
+            engine="mjx: mjx*; MuJoCo C: mujoco_c*",
+        )
+        rec["machine"]["gpu"] = sorted({r["gpu"] for r in rows if "gpu" in r})
         results_io.write(args.json, rec)
         print(json.dumps(rows, indent=2))
 
