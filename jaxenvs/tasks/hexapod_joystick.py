@@ -45,7 +45,9 @@ class JoystickConfig(HexapodRandomization):
     """``HexapodJoystick-v0``.
 
     Attributes:
-      episode_length: 1000 steps of 0.05 s (50 s).
+      episode_length: 1000 steps of 0.05 s (50 s): ten commands per episode. Training
+        costs the same at any length (batched envs reset on their own); a shorter one
+        would spend more of the data on starts from rest.
       solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
         contact solve.
       vx_range: forward speed command range (m/s, body frame).
