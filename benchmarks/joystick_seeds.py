@@ -30,6 +30,12 @@ kept (``walker_seeds.py`` says more).
     python benchmarks/joystick_seeds.py eval RUN
     JAX_PLATFORMS=cpu python benchmarks/joystick_seeds.py eval RUN --physics c --envs 128
     python benchmarks/joystick_seeds.py table RUN0 RUN1 RUN2 --json ppo_joystick_seeds_h200
+    MUJOCO_GL=egl JAX_PLATFORMS=cpu python benchmarks/joystick_seeds.py drive RUN --physics c \\
+        --gif benchmarks/images/hexapod_joystick.gif
+
+``drive`` plays a fixed command sequence (:data:`SEQUENCE`: forward, forward while
+turning, sideways, backwards, turning on the spot, standing) through the task's
+``with_command`` and prints the mean velocity under each command.
 """
 
 from __future__ import annotations
@@ -190,6 +196,63 @@ def evaluate(
     return result, trajectory
 
 
+#: the command sequence ``drive`` plays: (seconds, (vx m/s, vy m/s, yaw rate rad/s))
+SEQUENCE = (
+    (4.0, (0.3, 0.0, 0.0)),
+    (4.0, (0.2, 0.0, 0.6)),
+    (3.0, (0.0, -0.2, 0.0)),
+    (3.0, (-0.2, 0.0, 0.0)),
+    (3.0, (0.0, 0.0, -0.8)),
+    (2.0, (0.0, 0.0, 0.0)),
+)
+
+
+def drive(run_dir: str, physics: str | None, seed: int = 0) -> dict[str, np.ndarray]:
+    """Play :data:`SEQUENCE` with the run's greedy policy in one env (default physics, no
+    pushes): per step the pose, the command and the velocity."""
+    env, act = eval_env(run_dir, physics)
+    commands = np.concatenate(
+        [np.tile(cmd, (round(t / env.control_dt), 1)) for t, cmd in SEQUENCE]
+    ).astype(np.float32)
+
+    @jax.jit
+    def play(key: jax.Array, commands: jax.Array) -> Any:
+        def body(s, cmd):  # type: ignore[no-untyped-def]
+            s = env.with_command(s, cmd)
+            prev = s.data
+            s = env.step(s, act(s.obs, s.key))
+            return s, (s.data.qpos, env.velocity(prev, s.data), s.terminated)
+
+        return jax.lax.scan(body, env.reset(key), commands)[1]
+
+    qpos, velocity, fell = (np.asarray(x) for x in play(jax.random.key(seed), commands))
+    return {"qpos": qpos, "command": commands, "velocity": velocity, "fell": fell}
+
+
+def render_drive(path: dict[str, np.ndarray], gif: str, lead: float = 1.5, every: int = 3) -> None:
+    """An animated GIF of a ``drive`` (every ``every`` control steps); the red marker sits
+    where the command would take the body in ``lead`` seconds (vx, vy in its heading)."""
+    import imageio.v2 as imageio
+
+    from jaxenvs import make
+    from jaxenvs import render as rendering
+    from jaxenvs.tasks.hexapod_joystick import heading
+
+    env = make("HexapodJoystick-v0", physics="c")
+    frames = []
+    with rendering.Renderer(env, 240, 180, None) as renderer:
+        renderer.model.vis.headlight.ambient[:] = 0.35
+        renderer.model.vis.headlight.diffuse[:] = 0.55
+        for q, cmd in zip(path["qpos"][::every], path["command"][::every], strict=True):
+            yaw = float(heading(jnp.asarray(q[3:7])))
+            c, s = np.cos(yaw), np.sin(yaw)
+            ahead = lead * np.array([c * cmd[0] - s * cmd[1], s * cmd[0] + c * cmd[1]])
+            marker = np.array([[q[0] + ahead[0], q[1] + ahead[1], 0.01]])
+            frames.append(renderer.frame(q, marker))
+    imageio.mimsave(gif, frames, duration=every * env.control_dt * 1000, loop=0)
+    print(f"gif: {gif} ({len(frames)} frames, {Path(gif).stat().st_size} bytes)")
+
+
 def table(run_dirs: list[str]) -> list[dict[str, Any]]:
     """One record per run (seed) from its summary.json, config.yaml and eval files."""
     rows = []
@@ -232,6 +295,10 @@ def main(argv: list[str] | None = None) -> None:
     ev.add_argument("--trajectory", metavar="OUT.npz", help="save env 0's poses per group")
     sl = sub.add_parser("slim", help="write a run's greedy policy to RUN/policy.npz")
     sl.add_argument("run_dir")
+    dr = sub.add_parser("drive", help="play a command sequence, print it, draw it")
+    dr.add_argument("run_dir")
+    dr.add_argument("--physics", choices=("mjx", "c"), default=None)
+    dr.add_argument("--gif", metavar="OUT.gif", help="draw it (MUJOCO_GL=egl)")
     tb = sub.add_parser("table", help="per-seed records of evaluated runs")
     tb.add_argument("run_dirs", nargs="+")
     tb.add_argument("--json", metavar="NAME", required=True, help=results_io.HELP)
@@ -254,6 +321,17 @@ def main(argv: list[str] | None = None) -> None:
         out.write_text(json.dumps(result, indent=2) + "\n")
         if args.trajectory:
             np.savez_compressed(args.trajectory, **trajectory)
+    elif args.command == "drive":
+        path = drive(args.run_dir, args.physics)
+        start = 0
+        for seconds, cmd in SEQUENCE:
+            end = start + round(seconds / 0.05)
+            v = path["velocity"][start + 20 : end].mean(0)  # after the first second
+            print(f"command {cmd}: mean velocity {tuple(round(float(x), 3) for x in v)}")
+            start = end
+        print(f"fell: {bool(path['fell'].any())}")
+        if args.gif:
+            render_drive(path, args.gif)
     elif args.command == "slim":
         print(f"policy: {slim(args.run_dir)}")
     else:

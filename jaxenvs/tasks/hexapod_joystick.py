@@ -26,7 +26,7 @@ from flax import struct
 from mujoco import mjx
 
 from jaxenvs.config import require
-from jaxenvs.core import Env
+from jaxenvs.core import Env, State
 from jaxenvs.randomize import Range
 from jaxenvs.robots.base import Readings, RobotTask, gravity_in_body, quat_to_mat
 from jaxenvs.robots.hexapod import Hexapod
@@ -317,6 +317,14 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         if self.config.obs_noise > 0:
             obs = obs + self.config.obs_noise * OBS_NOISE * jax.random.normal(key, obs.shape)
         return obs
+
+    def with_command(self, state: State, command: jax.Array) -> State:
+        """``state`` with ``command`` (vx, vy, yaw rate) as the current command, in its
+        extras and its observation, and the redraw schedule restarted: a driver that sets
+        it before every step (``jaxenvs view``'s keys) overrides the drawn commands."""
+        command = jnp.asarray(command, jnp.float32)
+        extras = state.extras.replace(command=command, since=jnp.zeros_like(state.extras.since))
+        return state.replace(extras=extras, obs=state.obs.at[..., -3:].set(command))
 
     def velocity(self, prev: mjx.Data, data: mjx.Data) -> jax.Array:
         """(forward, lateral, yaw rate) of the step ``prev -> data`` (:func:`heading_velocity`)."""
