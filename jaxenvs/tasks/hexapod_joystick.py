@@ -318,6 +318,14 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             obs = obs + self.config.obs_noise * OBS_NOISE * jax.random.normal(key, obs.shape)
         return obs
 
+    @property
+    def command_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """The lowest and highest command (vx, vy, yaw rate) of the config's ranges."""
+        c = self.config
+        low = np.array([c.vx_range[0], c.vy_range[0], c.yaw_range[0]], np.float32)
+        high = np.array([c.vx_range[1], c.vy_range[1], c.yaw_range[1]], np.float32)
+        return low, high
+
     def with_command(self, state: State, command: jax.Array) -> State:
         """``state`` with ``command`` (vx, vy, yaw rate) as the current command, in its
         extras and its observation, and the redraw schedule restarted: a driver that sets
