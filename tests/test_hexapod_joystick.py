@@ -19,6 +19,7 @@ from jaxenvs.tasks.hexapod_joystick import (
     heading_velocity,
     sample_command,
 )
+from jaxenvs.testing import check_engine_parity
 
 
 @pytest.fixture(scope="module")
@@ -151,3 +152,10 @@ def test_heading_velocity():
 def test_bad_config_is_named(field, value):
     with pytest.raises(ConfigError, match=field):
         JoystickConfig(**{field: value}).validate()
+
+
+@pytest.mark.full
+def test_engine_parity_in_the_air():
+    """MJX and MuJoCo C agree step by step before the feet touch down (on the ground the
+    solvers part from the first contact, as for the walker: tests/test_cengine.py)."""
+    check_engine_parity("HexapodJoystick-v0", steps=2, init_height=0.3)
