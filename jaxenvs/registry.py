@@ -186,7 +186,7 @@ def make(
 
 
 def _builtin() -> None:
-    from jaxenvs.tasks import cartpole, hexapod, reacher
+    from jaxenvs.tasks import cartpole, hexapod, hexapod_joystick, reacher
 
     register(
         "CartPole-v0",
@@ -233,6 +233,12 @@ def _builtin() -> None:
         hexapod.HexapodOneLeg,
         hexapod.OneLegConfig(),
         "one hexapod leg on a fixed base: -(tip - target)^2, 100 steps",
+    )
+    register(
+        "HexapodJoystick-v0",
+        hexapod_joystick.HexapodJoystick,
+        hexapod_joystick.JoystickConfig(),
+        "6 legs x 3 servos follow a velocity command from onboard sensors, 1000 steps",
     )
 
 

@@ -153,6 +153,31 @@ def test_policy_mode_plays_act_fn() -> None:
         viewer.Player(pend, "policy")
 
 
+def test_keys_drive_a_task_that_takes_commands() -> None:
+    from jaxenvs.tasks.hexapod_joystick import HexapodJoystick
+
+    env = jaxenvs.make("HexapodJoystick-v0", physics="c")
+    assert isinstance(env, HexapodJoystick) and viewer.drivable(env)
+    assert not viewer.drivable(jaxenvs.make(ID, physics=TASK_LOGIC))
+    handles: list[FakeHandle] = []
+    up, left, comma, stop = 265, 263, 44, viewer.STOP_KEY
+
+    def launch(model: Any, data: Any, key_callback: Any) -> FakeHandle:
+        for key in (up, up, left, comma, comma, comma, comma, comma):
+            key_callback(key)
+        handles.append(FakeHandle(model, data, None, max_syncs=3))
+        return handles[0]
+
+    player = viewer.view(env, "random", realtime=False, launch=launch)
+    low, high = env.command_range
+    expected = np.array([2 * (high[0] - low[0]) / 8, high[1], (high[2] - low[2]) / 8])
+    np.testing.assert_allclose(player.keys.command, expected, rtol=1e-6)  # vy held at its top
+    np.testing.assert_allclose(player.state.extras.command, expected, rtol=1e-6)
+    np.testing.assert_allclose(player.state.obs[-3:], expected, rtol=1e-6)
+    player.keys.press(stop)
+    np.testing.assert_array_equal(player.keys.command, np.zeros(3))
+
+
 # ------------------------------------------------------------- under a virtual display
 def _bob_pixels(image: np.ndarray) -> int:
     """Pixels of the pendulum's orange bob (rgba .9 .4 .2), shaded: proof the 3D scene

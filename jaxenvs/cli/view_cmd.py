@@ -4,8 +4,12 @@ by a trained policy.
 ``jaxenvs view Reacher-v0`` opens the viewer; drag the Control sliders (right panel) to
 move the actuators yourself. ``--random`` plays random actions; ``--policy RUN_DIR``
 plays the greedy policy of a run written by ``jaxenvs train`` (on the run's own env
-config). Episodes restart from a fresh random state when they end. Needs a display;
-without one it says so in one line and points to ``jaxenvs render``.
+config; a run directory that keeps only the greedy policy, ``policy.npz``, instead of
+``checkpoint.npz`` plays that). Episodes restart from a fresh random state when they end.
+A task that takes commands (``HexapodJoystick-v0``) is driven from the keyboard: Up/Down,
+Left/Right and ``,``/``.`` step its command, Backspace zeroes it
+(:class:`jaxenvs.render.viewer.CommandKeys`). Needs a display; without one it says so in one line
+and points to ``jaxenvs render``.
 """
 
 from __future__ import annotations
@@ -30,11 +34,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fast", action="store_true", help="do not slow down to real time")
 
 
+#: a run directory's greedy policy alone (``benchmarks/walker_seeds.py slim`` writes it)
+POLICY_FILE = "policy.npz"
+
+
+def _slim_policy(path: Any) -> tuple[str, Any, Any]:
+    """``(env_id, env, act_fn)`` of a run directory's ``policy.npz`` and config.yaml."""
+    import jax
+
+    from jaxenvs.run import checkpoint, runner
+
+    resolved = runner.load_run_config(path.parent)
+    env, trainer = runner.build(resolved)
+    template = jax.eval_shape(lambda k: trainer.policy_params(trainer.init(k)), jax.random.key(0))
+    params, _ = checkpoint.load(path, template)
+    return resolved.env_id, env, lambda obs, key: trainer.act(params, obs, key)
+
+
 def _policy(run_dir: str, env_id: str) -> tuple[Any, Any]:
     """The run's env and greedy ``act_fn(obs, key)``; the run must be of ``env_id``."""
+    from pathlib import Path
+
     from jaxenvs.run import runner
 
-    run_env_id, env, act_fn = runner.load_policy(run_dir)
+    if (Path(run_dir) / POLICY_FILE).exists() and not (
+        Path(run_dir) / runner.CHECKPOINT_FILE
+    ).exists():
+        run_env_id, env, act_fn = _slim_policy(Path(run_dir) / POLICY_FILE)
+    else:
+        run_env_id, env, act_fn = runner.load_policy(run_dir)
     if run_env_id != env_id:
         raise ValueError(f"{run_dir} is a run of {run_env_id}, not {env_id}")
     return env, act_fn
@@ -57,8 +85,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         env = jaxenvs.make(args.env_id)
         mode = "random" if args.random else "manual"
+    if viewer.drivable(env):
+        print("keys: Up/Down forward speed, Left/Right yaw rate, ,/. sideways, Backspace stop")
     player = viewer.view(
         env, mode, act_fn, seed=args.seed, steps=args.steps, realtime=not args.fast
     )
     print(f"viewer closed after {player.episodes} episode(s)")
+    if player.keys is not None:
+        print(f"last command: {[round(float(x), 3) for x in player.keys.command]}")
     return 0

@@ -12,6 +12,12 @@ passive viewer (``mujoco.viewer.launch_passive``) draws. Three ways to choose ac
 * ``"policy"``: a trained policy, ``act_fn(obs, key) -> action`` (see
   :func:`jaxenvs.run.runner.load_policy`).
 
+A task that takes commands (it has ``with_command(state, command)`` and
+``command_range``, e.g. ``HexapodJoystick-v0``) is driven from the keyboard in every
+mode: :class:`CommandKeys` (Up/Down, Left/Right, ``,``/``.`` step the command's first,
+third and second entries by an eighth of their range; Backspace zeroes it), set before
+every step.
+
 In every mode a finished episode (terminated or truncated) starts again from a fresh
 random initial state. In the random and policy modes the sliders show the applied
 controls. Mouse perturbations in the viewer have no effect: the physics is JAX's.
@@ -23,6 +29,7 @@ A display is needed (X11 or Wayland): :func:`require_display` raises
 from __future__ import annotations
 
 import copy
+import functools
 import importlib
 import os
 import threading
@@ -110,6 +117,42 @@ def copy_state(model: mujoco.MjModel, data: mujoco.MjData, state: State, dt: flo
     mujoco.mj_forward(model, data)
 
 
+# ----------------------------------------------------------------------------- commands
+#: GLFW key code -> (command entry, direction) of :class:`CommandKeys`
+DRIVE_KEYS = {265: (0, 1), 264: (0, -1), 263: (2, 1), 262: (2, -1), 44: (1, 1), 46: (1, -1)}
+STOP_KEY = 259  # Backspace
+
+
+class CommandKeys:
+    """A drivable task's command, set from the keyboard (:data:`DRIVE_KEYS`): each press
+    moves one entry by an eighth of its range, within the range; :data:`STOP_KEY` zeroes
+    the command. Starts at zero."""
+
+    def __init__(self, low: np.ndarray, high: np.ndarray) -> None:
+        self.low, self.high = np.asarray(low, np.float32), np.asarray(high, np.float32)
+        self.increment = (self.high - self.low) / 8
+        self.command = np.zeros_like(self.low)
+
+    def press(self, keycode: int) -> None:
+        """The viewer's key callback."""
+        if keycode == STOP_KEY:
+            self.command = np.zeros_like(self.low)
+        elif keycode in DRIVE_KEYS:
+            entry, direction = DRIVE_KEYS[keycode]
+            command = self.command.copy()
+            command[entry] = np.clip(
+                command[entry] + direction * self.increment[entry],
+                self.low[entry],
+                self.high[entry],
+            )
+            self.command = command
+
+
+def drivable(env: Env) -> bool:
+    """Whether ``env`` takes commands (``with_command`` and ``command_range``)."""
+    return callable(getattr(env, "with_command", None)) and hasattr(env, "command_range")
+
+
 # ------------------------------------------------------------------------------ player
 class Player:
     """One env stepped on the host's behalf: jitted reset/step, actions per mode, and a
@@ -133,6 +176,9 @@ class Player:
         self._act = jax.jit(act_fn if act_fn is not None else self._random_action)
         self._key = jax.random.key(seed)
         self.episodes = 0
+        #: the keyboard's command of a drivable task (else ``None``)
+        self.keys = CommandKeys(*env.command_range) if drivable(env) else None  # type: ignore[attr-defined]
+        self._command = jax.jit(env.with_command) if self.keys else None  # type: ignore[attr-defined]
         self.state = self.reset()
         self.action: np.ndarray = np.zeros(env.action_shape, np.int32 if env.discrete else float)
 
@@ -153,6 +199,8 @@ class Player:
 
     def step(self, sliders: np.ndarray) -> State:
         """One control step; ``sliders`` (the viewer's ctrl) is used in manual mode."""
+        if self.keys is not None and self._command is not None:
+            self.state = self._command(self.state, jnp.asarray(self.keys.command))
         if self.mode == "manual":
             action = jnp.asarray(sliders_to_action(self.env, self.env.sim.mj_model, sliders))
         else:
@@ -213,6 +261,8 @@ def view(
     player = Player(env, mode, act_fn, seed)
     dt = env.control_dt
     copy_state(model, data, player.state, dt)
+    if player.keys is not None:
+        launch = functools.partial(launch, key_callback=player.keys.press)
     handle, threads = _launch(launch, model, data)
     try:
         done = 0

@@ -1,0 +1,380 @@
+"""``HexapodJoystick-v0``: drive the hexapod with a velocity command (forward and lateral
+speed in the body frame, yaw rate), from what the robot measures.
+
+The observation is :meth:`HexapodJoystick.observation` of the robot's non-privileged
+readings (:meth:`~jaxenvs.robots.base.Robot.sense`: encoders and IMU) and the task's own
+state (:meth:`HexapodJoystick.task_state`: the command and the last action), so a loop
+driving a real hexapod computes it from readings received over a link with
+``observation(readings, (command, last_action))``. Body velocities, the world position
+and the world yaw are privileged: the reward uses them, the policy does not see them.
+
+Physics as ``HexapodWalk-v0`` (:mod:`jaxenvs.tasks.hexapod`): six foot-floor contact
+pairs, Euler with implicit damping, the CG solver with ``solver_iterations`` and
+``ls_iterations`` from the config.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from jaxenvs.config import require
+from jaxenvs.core import Env, State
+from jaxenvs.randomize import Range
+from jaxenvs.robots.base import Readings, RobotTask, gravity_in_body, quat_to_mat
+from jaxenvs.robots.hexapod import Hexapod
+from jaxenvs.tasks.hexapod import HexapodRandomization, _solver_edit
+
+#: the observation noise at ``obs_noise=1``, per entry: joint angles (rad), joint
+#: velocities (rad/s), gravity direction, gyro (rad/s); the last action and the command
+#: are known exactly
+OBS_NOISE = np.concatenate(
+    [np.full(18, 0.01), np.full(18, 0.3), np.full(3, 0.02), np.full(3, 0.05), np.zeros(21)]
+).astype(np.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class JoystickConfig(HexapodRandomization):
+    """``HexapodJoystick-v0``.
+
+    Attributes:
+      episode_length: 1000 steps of 0.05 s (50 s): ten commands per episode. Training
+        costs the same at any length (batched envs reset on their own); a shorter one
+        would spend more of the data on starts from rest.
+      solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
+        contact solve.
+      vx_range: forward speed command range (m/s, body frame).
+      vy_range: lateral speed command range (m/s, body frame, positive to the left).
+      yaw_range: yaw rate command range (rad/s, positive counter-clockwise from above).
+      zero_probability: probability that a drawn command is zero (stand still).
+      command_interval: the command is redrawn every this many control steps.
+      lin_weight, lin_sigma: weight and width (m^2/s^2) of the linear tracking term
+        ``exp(-|v_cmd - v|^2 / lin_sigma)``.
+      yaw_weight, yaw_sigma: weight and width (rad^2/s^2) of the yaw-rate tracking term.
+      vz_weight: weight of the squared vertical body speed (m^2/s^2).
+      spin_weight: weight of the squared roll and pitch rates (rad^2/s^2, body frame).
+      tilt_weight: weight of ``1 - up_z`` (``up_z`` the vertical component of the body's
+        up axis).
+      action_rate_weight: weight of the squared change of the action since the last step.
+      energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
+      alive_bonus: reward per step while not fallen.
+      min_height: the episode ends when the body's height falls below this (m) ...
+      min_upright: ... or when its up axis' vertical component falls below this.
+      init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
+      init_height: initial body height (m).
+      action_noise: std of Gaussian noise added to each action before it is clipped.
+      obs_noise: std of Gaussian observation noise as a multiple of :data:`OBS_NOISE`.
+      push_probability: probability per control step of a push ...
+      push_speed: ... which adds a horizontal velocity of this magnitude (m/s) in a
+        uniformly random direction to the body.
+    """
+
+    episode_length: int = 1000
+    solver_iterations: int = 6
+    ls_iterations: int = 3
+    vx_range: Range = (-0.4, 0.4)
+    vy_range: Range = (-0.25, 0.25)
+    yaw_range: Range = (-0.8, 0.8)
+    zero_probability: float = 0.1
+    command_interval: int = 100
+    lin_weight: float = 1.5
+    lin_sigma: float = 0.04
+    yaw_weight: float = 1.0
+    yaw_sigma: float = 0.1
+    vz_weight: float = 1.0
+    spin_weight: float = 0.02
+    tilt_weight: float = 1.0
+    action_rate_weight: float = 0.03
+    energy_weight: float = 0.002
+    alive_bonus: float = 0.25
+    min_height: float = 0.06
+    min_upright: float = 0.7
+    init_joint_noise: float = 0.05
+    init_height: float = 0.14
+    action_noise: float = 0.0
+    obs_noise: float = 0.0
+    push_probability: float = 0.0
+    push_speed: float = 0.0
+
+    def validate(self) -> None:
+        super().validate()
+        require(self.solver_iterations >= 1, "solver_iterations", "must be >= 1")
+        require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
+        for name in ("vx_range", "vy_range", "yaw_range"):
+            low, high = getattr(self, name)
+            require(low <= high, name, "must be (low, high) with low <= high")
+        require(0 <= self.zero_probability <= 1, "zero_probability", "must be in [0, 1]")
+        require(0 <= self.push_probability <= 1, "push_probability", "must be in [0, 1]")
+        require(self.command_interval >= 1, "command_interval", "must be >= 1")
+        require(self.lin_sigma > 0, "lin_sigma", "must be > 0")
+        require(self.yaw_sigma > 0, "yaw_sigma", "must be > 0")
+        nonneg = (
+            "lin_weight",
+            "yaw_weight",
+            "vz_weight",
+            "spin_weight",
+            "tilt_weight",
+            "action_rate_weight",
+            "energy_weight",
+            "alive_bonus",
+            "init_joint_noise",
+            "action_noise",
+            "obs_noise",
+            "push_speed",
+        )
+        for name in nonneg:
+            require(getattr(self, name) >= 0, name, "must be >= 0")
+        require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
+        require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
+
+
+class JoystickParams(struct.PyTreeNode):
+    """Randomisable physics: ``model``, the MJX model fields swapped in at every step."""
+
+    model: dict[str, jax.Array]
+
+
+class JoystickExtras(struct.PyTreeNode):
+    """``HexapodJoystick-v0``'s own state.
+
+    Attributes:
+      command: (vx, vy, yaw rate) in m/s, m/s, rad/s.
+      since: control steps since the command was drawn.
+      action: the last action (18; as the policy gave it, before any action noise).
+      prev_action: the action before it (18).
+    """
+
+    command: jax.Array
+    since: jax.Array
+    action: jax.Array
+    prev_action: jax.Array
+
+
+def heading(quat: jax.Array) -> jax.Array:
+    """The yaw (rad) of the body's x axis projected on the floor, for orientation ``quat``
+    (w x y z)."""
+    w, x, y, z = quat[0], quat[1], quat[2], quat[3]
+    return jnp.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def heading_velocity(
+    pos0: jax.Array, quat0: jax.Array, pos1: jax.Array, quat1: jax.Array, dt: float
+) -> jax.Array:
+    """The body's mean velocity over a step of ``dt`` seconds from pose 0 to pose 1:
+    (forward, lateral) in the frame of the body's heading at the step's middle (m/s), and
+    the yaw rate (rad/s)."""
+    yaw0, yaw1 = heading(quat0), heading(quat1)
+    turn = jnp.arctan2(jnp.sin(yaw1 - yaw0), jnp.cos(yaw1 - yaw0))
+    mid = yaw0 + 0.5 * turn
+    d = (pos1[:2] - pos0[:2]) / dt
+    c, s = jnp.cos(mid), jnp.sin(mid)
+    return jnp.stack([c * d[0] + s * d[1], -s * d[0] + c * d[1], turn / dt])
+
+
+def sample_command(u: jax.Array, config: JoystickConfig) -> jax.Array:
+    """A command from four uniforms in [0, 1): three place it in the config's ranges, the
+    fourth makes it zero with probability ``zero_probability``."""
+    low = jnp.asarray([config.vx_range[0], config.vy_range[0], config.yaw_range[0]])
+    high = jnp.asarray([config.vx_range[1], config.vy_range[1], config.yaw_range[1]])
+    command = low + (high - low) * u[:3]
+    return jnp.where(u[3] < config.zero_probability, jnp.zeros(3), command)
+
+
+class HexapodJoystick(RobotTask, Env[JoystickConfig]):
+    """``HexapodJoystick-v0``: follow a velocity command.
+
+    * Observation (63), :meth:`observation` of the robot's readings: 18 joint angles (rad;
+      legs lf, lm, lr, rf, rm, rr, each hip, femur, tibia: the encoders), 18 joint
+      velocities (rad/s, the encoders), gravity direction in the body frame (3, from the
+      IMU's ``imu_quat``), body angular velocity in the body frame (3, rad/s, the IMU's
+      ``imu_gyro``), the last action (18), the command (3: vx, vy in m/s, yaw rate in
+      rad/s). With ``obs_noise`` > 0, plus Gaussian noise of std ``obs_noise * OBS_NOISE``
+      (sensors only). Nothing privileged: no position, world yaw or linear velocity.
+    * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range
+      (with ``action_noise`` > 0, Gaussian noise of that std added, then clipped).
+    * Command: (vx, vy, yaw rate) uniform in ``vx_range`` x ``vy_range`` x ``yaw_range``,
+      all zero with probability ``zero_probability``; drawn at reset and redrawn every
+      ``command_interval`` steps (5 s), from the reset's and the act hook's keys.
+    * Velocity: the body's mean velocity over the control step in the frame of its
+      heading (forward, lateral; m/s) and its yaw rate (rad/s), from the torso's world
+      pose before and after the step (:func:`heading_velocity`; privileged).
+    * Reward: ``lin_weight * exp(-|cmd_xy - v_xy|^2 / lin_sigma) + yaw_weight *
+      exp(-(cmd_yaw - yaw_rate)^2 / yaw_sigma) - vz_weight * v_z^2 - spin_weight *
+      (w_roll^2 + w_pitch^2) - tilt_weight * (1 - up_z) - action_rate_weight * |a -
+      a_prev|^2 - energy_weight * sum|tau * qdot| + alive_bonus``; ``v_z`` and ``w`` from
+      the body-frame velocimeter and gyro at the step's end.
+    * Metrics: ``lin_error`` (|cmd_xy - v_xy|, m/s), ``yaw_error`` (|cmd_yaw - yaw rate|,
+      rad/s), ``energy`` (W).
+    * Termination: height < ``min_height`` or the up axis' z-component < ``min_upright``
+      (as ``HexapodWalk-v0``). Truncation: ``episode_length`` steps.
+    * Start: body at 0.14 m with a random yaw, joints uniform in +-0.05 rad around the
+      stance, at rest; last action zero.
+    * Pushes: with probability ``push_probability`` per step, a horizontal velocity of
+      ``push_speed`` in a random direction is added to the body before the step.
+    * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s.
+    """
+
+    cpu_physics = "c"
+    robot: Hexapod
+
+    metric_keys = ("lin_error", "yaw_error", "energy")
+    #: the test battery's vmap-vs-single tolerance (as ``HexapodWalk-v0``)
+    vmap_atol = 1e-2
+    observation_size = 63
+    action_size = 18
+
+    def __init__(self, config: JoystickConfig | None = None) -> None:
+        config = config or JoystickConfig()
+        self.robot = Hexapod()
+        sim = self.robot.make_sim(
+            config.timestep,
+            config.substeps,
+            edit=_solver_edit(config.solver_iterations, config.ls_iterations),
+        )
+        super().__init__(config, sim)
+        self._torso = mujoco.mj_name2id(sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, "torso")
+        self._params = JoystickParams(model=self.robot.default_fields(sim))
+
+    def _init(self, key: jax.Array, params: JoystickParams) -> tuple[mjx.Data, JoystickExtras]:
+        u = jax.random.uniform(key, (23,))  # one draw: see HexapodWalk._init
+        c = self.config
+        yaw = math.pi * (2.0 * u[0] - 1.0)
+        quat = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
+        joints = c.init_joint_noise * (2.0 * u[1:19] - 1.0)
+        qpos = self.robot.qpos(jnp.array([0.0, 0.0, c.init_height]), quat, joints)
+        data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24))
+        zero = jnp.zeros(18)
+        extras = JoystickExtras(
+            command=sample_command(u[19:23], c),
+            since=jnp.zeros((), jnp.int32),
+            action=zero,
+            prev_action=zero,
+        )
+        return data, extras
+
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: JoystickExtras,
+        action: jax.Array,
+        params: JoystickParams,
+    ) -> tuple[mjx.Data, JoystickExtras]:
+        c = self.config
+        u = jax.random.uniform(key, (7,))  # command (4), push (3)
+        applied = action
+        if c.action_noise > 0:
+            noise = c.action_noise * jax.random.normal(jax.random.fold_in(key, 1), action.shape)
+            applied = jnp.clip(action + noise, -1.0, 1.0)
+        if c.push_probability > 0 and c.push_speed > 0:
+            angle = 2.0 * math.pi * u[5]
+            kick = c.push_speed * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+            kick = jnp.where(u[4] < c.push_probability, kick, jnp.zeros(2))
+            data = data.replace(qvel=data.qvel.at[:2].add(kick))
+        data = self.sim.step(self.sim.model_with(params.model), data, self.robot.command(applied))
+        since = extras.since + 1
+        redraw = since >= c.command_interval
+        extras = JoystickExtras(
+            command=jnp.where(redraw, sample_command(u[:4], c), extras.command),
+            since=jnp.where(redraw, 0, since),
+            action=action,
+            prev_action=extras.action,
+        )
+        return data, extras
+
+    def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, jax.Array]:
+        """The task's own input to :meth:`observation`: (command (3), last action (18))."""
+        del data
+        return extras.command, extras.action
+
+    def observation(self, readings: Readings, task: tuple[jax.Array, jax.Array]) -> jax.Array:
+        """The noiseless observation (the layout in the class docstring) of the robot's
+        ``readings`` (only its non-privileged sensors are read) and ``(command,
+        last_action)``."""
+        command, last_action = task
+        return jnp.concatenate(
+            [
+                self.robot.joint_pos(readings),
+                self.robot.joint_vel(readings),
+                gravity_in_body(readings["imu_quat"]),
+                readings["imu_gyro"],
+                last_action,
+                command,
+            ]
+        )
+
+    def _observe(
+        self, key: jax.Array, data: mjx.Data, extras: JoystickExtras, params: JoystickParams
+    ) -> jax.Array:
+        obs = self.observation(self.robot.sense(data), self.task_state(data, extras))
+        if self.config.obs_noise > 0:
+            obs = obs + self.config.obs_noise * OBS_NOISE * jax.random.normal(key, obs.shape)
+        return obs
+
+    @property
+    def command_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """The lowest and highest command (vx, vy, yaw rate) of the config's ranges."""
+        c = self.config
+        low = np.array([c.vx_range[0], c.vy_range[0], c.yaw_range[0]], np.float32)
+        high = np.array([c.vx_range[1], c.vy_range[1], c.yaw_range[1]], np.float32)
+        return low, high
+
+    def with_command(self, state: State, command: jax.Array) -> State:
+        """``state`` with ``command`` (vx, vy, yaw rate) as the current command, in its
+        extras and its observation, and the redraw schedule restarted: a driver that sets
+        it before every step (``jaxenvs view``'s keys) overrides the drawn commands."""
+        command = jnp.asarray(command, jnp.float32)
+        extras = state.extras.replace(command=command, since=jnp.zeros_like(state.extras.since))
+        return state.replace(extras=extras, obs=state.obs.at[..., -3:].set(command))
+
+    def velocity(self, prev: mjx.Data, data: mjx.Data) -> jax.Array:
+        """(forward, lateral, yaw rate) of the step ``prev -> data`` (:func:`heading_velocity`)."""
+        return heading_velocity(
+            prev.qpos[:3], prev.qpos[3:7], data.qpos[:3], data.qpos[3:7], self.control_dt
+        )
+
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: JoystickExtras,
+        params: JoystickParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
+        c = self.config
+        now = self.robot.sense(data)
+        vel = self.velocity(prev, data)
+        lin_sq = jnp.sum(jnp.square(extras.command[:2] - vel[:2]))
+        yaw_sq = jnp.square(extras.command[2] - vel[2])
+        energy = jnp.sum(jnp.abs(data.actuator_force * self.robot.joint_vel(now)))
+        spin = jnp.sum(jnp.square(now["imu_gyro"][:2]))
+        vz = now["torso_vel"][2]
+        rate = jnp.sum(jnp.square(extras.action - extras.prev_action))
+        up_z = quat_to_mat(now["imu_quat"])[2, 2]
+        reward = (
+            c.lin_weight * jnp.exp(-lin_sq / c.lin_sigma)
+            + c.yaw_weight * jnp.exp(-yaw_sq / c.yaw_sigma)
+            - c.vz_weight * vz * vz
+            - c.spin_weight * spin
+            - c.tilt_weight * (1.0 - up_z)
+            - c.action_rate_weight * rate
+            - c.energy_weight * energy
+            + c.alive_bonus
+        )
+        metrics = {"lin_error": jnp.sqrt(lin_sq), "yaw_error": jnp.sqrt(yaw_sq), "energy": energy}
+        return reward, metrics
+
+    def _terminated(
+        self, data: mjx.Data, extras: JoystickExtras, params: JoystickParams
+    ) -> jax.Array:
+        """Fallen: the body below ``min_height`` or tilted past ``min_upright``."""
+        c = self.config
+        now = self.robot.sense(data)
+        return (self.robot.height(now) < c.min_height) | (self.robot.upright(now) < c.min_upright)
