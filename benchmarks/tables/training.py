@@ -217,6 +217,37 @@ def walker_seeds(recs: list[Rec]) -> Cells:
     return each_row(head, order, cells)
 
 
+def _joystick_figures(g: Row) -> str:
+    fell = g["fell_fraction"] * 100
+    return f"{g['tracking_error_lin']:.3f} / {g['tracking_error_yaw']:.3f} / {fell:.1f}%"
+
+
+def joystick_seeds(recs: list[Rec]) -> Cells:
+    """HexapodJoystick-v0 per seed: RMS tracking errors and falls on both engines."""
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        return [
+            str(r["seed"]),
+            f"{r['train_seconds']:.1f} s ({r['first_chunk_seconds']:.1f} s first chunk), "
+            f"{r['env_steps'] / 1e6:.1f}M",
+            _joystick_figures(r["mjx"]),
+            _joystick_figures(r["mjx_randomized"]),
+            _joystick_figures(r["mujoco_c"]),
+            _joystick_figures(r["mujoco_c_randomized"]),
+        ]
+
+    head = [
+        "seed",
+        "train wall, env steps",
+        "MJX: lin m/s / yaw rad/s / fell",
+        "MJX, randomised",
+        "MuJoCo C",
+        "C, randomised",
+    ]
+    return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
+
+
 TABLES = {
     "ppo-cold-cpu2": Table(("ppo_cartpole_cold_cpu2_engines",), ppo_cold_cpu2),
     "cross-engine": Table(("cross_engine_ppo_cpu2",), cross_engine),
@@ -231,4 +262,5 @@ TABLES = {
         ppo,
     ),
     "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
+    "joystick-seeds": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
 }
