@@ -51,37 +51,22 @@ import numpy as np
 import results_io
 
 from jaxenvs.robots.hexapod import quat_to_mat
-from jaxenvs.run import checkpoint, runner
+from jaxenvs.run import runner
 from jaxenvs.tasks.hexapod import HexapodWalk, WalkConfig
 
 GROUPS = ("default_far", "default_near", "randomized_far", "randomized_near")
-POLICY_FILE = "policy.npz"
 EVAL_FILE = "walker_eval_{}.json"  # .format(physics)
 
 
 def load_policy(run_dir: str, physics: str | None) -> tuple[str, Any, Any]:
-    """``runner.load_policy`` of a run directory, or of a slim one that keeps ``policy.npz``
-    (``slim``) instead of the full ``checkpoint.npz``."""
-    run = Path(run_dir)
-    if (run / runner.CHECKPOINT_FILE).exists():
-        return runner.load_policy(run, physics)
-    resolved = runner.with_physics(runner.load_run_config(run), physics)
-    env, trainer = runner.build(resolved)
-    template = jax.eval_shape(lambda k: trainer.policy_params(trainer.init(k)), jax.random.key(0))
-    params, _ = checkpoint.load(run / POLICY_FILE, template)
-    return resolved.env_id, env, lambda obs, key: trainer.act(params, obs, key)
+    """``runner.load_policy``: a full run directory or one that keeps only ``policy.npz``."""
+    return runner.load_policy(run_dir, physics)
 
 
 def slim(run_dir: str) -> Path:
-    """Write the greedy policy of a run's best seed to ``policy.npz`` (a few hundred kB;
-    the full checkpoint also holds the 8192 envs' physics states)."""
-    run = Path(run_dir)
-    _, _, trainer, state = runner.restore(run)
-    per_seed = json.loads((run / runner.SUMMARY_FILE).read_text())["eval_mean_return_per_seed"]
-    seed = int(np.argmax(per_seed))  # as runner.load_policy picks
-    params = jax.tree.map(lambda x: x[seed], jax.vmap(trainer.policy_params)(state))
-    checkpoint.save(run / POLICY_FILE, params, {"seed_index": seed})
-    return run / POLICY_FILE
+    """Write the greedy policy of a run's best seed to ``policy.npz`` (``runner.save_policy``;
+    a few hundred kB, where the checkpoint also holds the 8192 envs' physics states)."""
+    return runner.save_policy(run_dir)
 
 
 def eval_env(run_dir: str, physics: str | None) -> tuple[HexapodWalk, Any]:

@@ -83,3 +83,27 @@ def test_a_resume_under_another_engine_names_the_engine(tmp_path_factory, tmp_pa
     (run / runner.CONFIG_FILE).write_text(config.replace("physics: c", "physics: mjx"))
     with pytest.raises(CheckpointError, match=r"config\.env\.physics is 'c' .* but 'mjx'"):
         runner.train(runner.load_run_config(run), run, resume=True, quiet=True)
+
+
+def test_a_run_that_keeps_only_its_policy_evaluates_and_exports_like_the_full_one(c_runs, tmp_path):
+    import shutil
+
+    from jaxenvs.deploy import export
+
+    full = c_runs["ppo"]
+    slim = tmp_path / "slim"
+    slim.mkdir()
+    for name in (runner.CONFIG_FILE, runner.SUMMARY_FILE):
+        shutil.copy(full / name, slim / name)
+    shutil.copy(runner.save_policy(full), slim / runner.POLICY_FILE)
+    assert not (slim / runner.CHECKPOINT_FILE).exists()
+
+    _, env, act_full = runner.load_policy(full)
+    _, _, act_slim = runner.load_policy(slim)
+    obs = jax.random.normal(jax.random.key(3), (64, env.observation_size))
+    keys = jax.random.split(jax.random.key(4), 64)
+    np.testing.assert_array_equal(jax.vmap(act_full)(obs, keys), jax.vmap(act_slim)(obs, keys))
+    assert runner.evaluate_run(slim, episodes=2)["episodes"] == 2
+    np.testing.assert_array_equal(
+        export.policy_of_run(slim)(np.asarray(obs)), export.policy_of_run(full)(np.asarray(obs))
+    )

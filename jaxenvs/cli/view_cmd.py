@@ -34,35 +34,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fast", action="store_true", help="do not slow down to real time")
 
 
-#: a run directory's greedy policy alone (``benchmarks/walker_seeds.py slim`` writes it)
-POLICY_FILE = "policy.npz"
-
-
-def _slim_policy(path: Any) -> tuple[str, Any, Any]:
-    """``(env_id, env, act_fn)`` of a run directory's ``policy.npz`` and config.yaml."""
-    import jax
-
-    from jaxenvs.run import checkpoint, runner
-
-    resolved = runner.load_run_config(path.parent)
-    env, trainer = runner.build(resolved)
-    template = jax.eval_shape(lambda k: trainer.policy_params(trainer.init(k)), jax.random.key(0))
-    params, _ = checkpoint.load(path, template)
-    return resolved.env_id, env, lambda obs, key: trainer.act(params, obs, key)
-
-
 def _policy(run_dir: str, env_id: str) -> tuple[Any, Any]:
     """The run's env and greedy ``act_fn(obs, key)``; the run must be of ``env_id``."""
-    from pathlib import Path
-
     from jaxenvs.run import runner
 
-    if (Path(run_dir) / POLICY_FILE).exists() and not (
-        Path(run_dir) / runner.CHECKPOINT_FILE
-    ).exists():
-        run_env_id, env, act_fn = _slim_policy(Path(run_dir) / POLICY_FILE)
-    else:
-        run_env_id, env, act_fn = runner.load_policy(run_dir)
+    run_env_id, env, act_fn = runner.load_policy(run_dir)
     if run_env_id != env_id:
         raise ValueError(f"{run_dir} is a run of {run_env_id}, not {env_id}")
     return env, act_fn

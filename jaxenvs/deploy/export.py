@@ -127,13 +127,13 @@ def policy_of_run(run_dir: str | Path, seed: int | None = None) -> NumpyPolicy:
     algo = load_run_config(run_dir).algo
     if algo != "ppo":
         raise ExportError(f"{run_dir} is a {algo} run; export needs a PPO run")
-    resolved, env, trainer, state = restore.restore(run_dir)
-    num_seeds = resolved.train.num_seeds
+    resolved, env, trainer, params = restore.restore_policy(run_dir)
+    num_seeds = jax.tree.leaves(params)[0].shape[0]
     if seed is None:
-        seed = _best_seed(run_dir, num_seeds)
+        seed = _best_seed(run_dir, num_seeds) if num_seeds > 1 else 0
     elif not 0 <= seed < num_seeds:
         raise ExportError(f"--seed must be between 0 and {num_seeds - 1} for {run_dir}")
-    pp = jax.device_get(jax.tree.map(lambda x: x[seed], jax.vmap(trainer.policy_params)(state)))
+    pp = jax.device_get(jax.tree.map(lambda x: x[seed], params))
     cfg = resolved.agent
     layers = _actor_layers(pp.params, tuple(cfg.actor_hidden), run_dir)
     f32 = np.float32

@@ -41,6 +41,8 @@ from jaxenvs.run.run_config import (
 )
 
 PyTree = Any
+#: a run directory's greedy policy alone (:func:`save_policy`)
+POLICY_FILE = "policy.npz"
 
 
 def restore(run_dir: str | Path) -> tuple[ResolvedConfig, Env, Trainer, PyTree]:
@@ -62,16 +64,42 @@ def restore_policy(
 ) -> tuple[ResolvedConfig, Env, Trainer, PyTree]:
     """Config, env, trainer and the (seed-batched) policy parameters of a run directory.
 
-    The parameters come from the checkpoint read under the run's own engine; the config,
-    env and trainer step with ``physics`` when given (``None``: the run's engine), so a
-    policy trained under one engine is evaluated or rendered under the other.
+    The parameters come from the checkpoint read under the run's own engine, or, in a run
+    directory that keeps only its greedy policy (:data:`POLICY_FILE`, written by
+    :func:`save_policy`; a GPU run brought home without its envs' states), from that file,
+    as one seed. The config, env and trainer step with ``physics`` when given (``None``:
+    the run's engine), so a policy trained under one engine is evaluated or rendered under
+    the other.
     """
-    trained, env, trainer, state = restore(run_dir)
-    params = jax.vmap(trainer.policy_params)(state)
+    run_dir = Path(run_dir)
+    if not (run_dir / CHECKPOINT_FILE).exists() and (run_dir / POLICY_FILE).exists():
+        trained = engine_resolved(load_run_config(run_dir))
+        env, trainer = build(trained)
+        template = jax.eval_shape(
+            lambda k: trainer.policy_params(trainer.init(k)), jax.random.key(0)
+        )
+        one, _ = checkpoint.load(run_dir / POLICY_FILE, template)
+        params = jax.tree.map(lambda x: x[None], one)
+    else:
+        trained, env, trainer, state = restore(run_dir)
+        params = jax.vmap(trainer.policy_params)(state)
     resolved = with_physics(trained, physics)
     if resolved != trained:
         env, trainer = build(resolved)
     return resolved, env, trainer, params
+
+
+def save_policy(run_dir: str | Path) -> Path:
+    """Write the greedy policy of a run's best seed to ``run_dir/POLICY_FILE`` (a few
+    hundred kB; the checkpoint also holds every training env's state) and return its
+    path. A run directory holding it and its ``config.yaml`` can be evaluated, rendered,
+    viewed and exported without its checkpoint."""
+    run_dir = Path(run_dir)
+    resolved, _, trainer, state = restore(run_dir)
+    seed = _best_seed(run_dir, resolved.train.num_seeds)
+    params = jax.tree.map(lambda x: x[seed], jax.vmap(trainer.policy_params)(state))
+    checkpoint.save(run_dir / POLICY_FILE, params, {"seed_index": seed})
+    return run_dir / POLICY_FILE
 
 
 def _best_seed(run_dir: Path, num_seeds: int) -> int:
@@ -92,7 +120,8 @@ def load_policy(
     the env with another engine than the run's.
     """
     resolved, env, trainer, params = restore_policy(run_dir, physics)
-    seed = _best_seed(Path(run_dir), resolved.train.num_seeds)
+    seeds = jax.tree.leaves(params)[0].shape[0]
+    seed = _best_seed(Path(run_dir), resolved.train.num_seeds) if seeds > 1 else 0
     params = jax.tree.map(lambda x: x[seed], params)
 
     def act_fn(obs: jax.Array, key: jax.Array) -> jax.Array:

@@ -33,7 +33,14 @@ from __future__ import annotations
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.loop import RunState, train
 from jaxenvs.run.programs import Programs, build_programs, program_store
-from jaxenvs.run.restore import evaluate_run, load_policy, restore, restore_policy
+from jaxenvs.run.restore import (
+    POLICY_FILE,
+    evaluate_run,
+    load_policy,
+    restore,
+    restore_policy,
+    save_policy,
+)
 from jaxenvs.run.results import (
     VIDEO_FPS,
     VIDEO_SIZE,
@@ -69,6 +76,7 @@ __all__ = [
     "CHECKPOINT_FILE",
     "CONFIG_FILE",
     "CURVE_FILE",
+    "POLICY_FILE",
     "PROGRESS_FILE",
     "SECTIONS",
     "SUMMARY_FILE",
@@ -96,6 +104,7 @@ __all__ = [
     "resolve_config",
     "restore",
     "restore_policy",
+    "save_policy",
     "seed_keys",
     "shipped_config",
     "train",
