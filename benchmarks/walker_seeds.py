@@ -51,7 +51,8 @@ import numpy as np
 import results_io
 
 from jaxenvs.agents import checkpoint, runner
-from jaxenvs.tasks.hexapod import HexapodWalk, WalkConfig, quat_to_mat
+from jaxenvs.robots.hexapod import quat_to_mat
+from jaxenvs.tasks.hexapod import HexapodWalk, WalkConfig
 
 GROUPS = ("default_far", "default_near", "randomized_far", "randomized_near")
 POLICY_FILE = "policy.npz"

@@ -15,16 +15,8 @@ import numpy as np
 import pytest
 
 from jaxenvs.core import NoExtras
-from jaxenvs.tasks.hexapod import (
-    JOINT_RANGE,
-    OBS_NOISE,
-    HexapodOneLeg,
-    HexapodWalk,
-    OneLegConfig,
-    WalkConfig,
-    leg_tip,
-    quat_to_mat,
-)
+from jaxenvs.robots.hexapod import JOINT_RANGE, leg_tip, quat_to_mat
+from jaxenvs.tasks.hexapod import OBS_NOISE, HexapodOneLeg, HexapodWalk, OneLegConfig, WalkConfig
 
 # Parity tolerances (MJX float32 vs MuJoCo C float64, 100 control steps = 500 physics steps).
 # The leg has no contacts: the two agree to float32 rounding. The walker's contacts are
@@ -74,6 +66,11 @@ def _mj_rollout(env, qpos, mocap, ctrls):
             mujoco.mj_step(m, d)
         out.append(d.qpos.copy())
     return np.array(out)
+
+
+def _noiseless(env, state):
+    """The walker's observation of ``state`` without noise: its readings and target."""
+    return env.observation(env.robot.sense(state.data), env.task_state(state.data, state.extras))
 
 
 def test_quat_to_mat_matches_mujoco():
@@ -126,9 +123,9 @@ def test_walker_noise_options_default_off_and_keyed():
     noisy = HexapodWalk(WalkConfig(physics="mjx", action_noise=0.1, obs_noise=1.0))
     key = jax.random.key(3)
     s0, n0 = quiet.reset(key), noisy.reset(key)
-    np.testing.assert_array_equal(s0.obs, quiet._sense(s0.data))
+    np.testing.assert_array_equal(s0.obs, _noiseless(quiet, s0))
     assert np.allclose(n0.data.qpos, s0.data.qpos)  # noise does not touch the init
-    sensed = np.asarray(noisy._sense(n0.data))
+    sensed = np.asarray(_noiseless(noisy, n0))
     err = np.asarray(n0.obs) - sensed
     assert np.all(np.abs(err) < 6 * OBS_NOISE) and np.any(err != 0)
     np.testing.assert_array_equal(noisy.reset(key).obs, n0.obs)

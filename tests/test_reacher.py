@@ -12,7 +12,7 @@ import pytest
 
 import jaxenvs
 from jaxenvs.config import ConfigError
-from jaxenvs.tasks.reacher import LINK_LENGTH, REACH, planar_arm
+from jaxenvs.robots.reacher import LINK_LENGTH, REACH, planar_arm
 
 N = 64
 
@@ -73,20 +73,20 @@ def test_fingertip_is_mujocos_site_position(env):
     model = env.sim.mj_model
     host = mujoco.MjData(model)
     qpos = np.random.default_rng(0).uniform(-12.0, 12.0, (200, 2))
-    tips = jax.jit(jax.vmap(lambda q: env.fingertip(env.sim._data0.replace(qpos=q))))
+    tips = jax.jit(jax.vmap(env.robot.fingertip))
     ours = np.asarray(tips(jnp.asarray(qpos, jnp.float32)))
     for q, tip in zip(qpos, ours, strict=True):
         host.qpos[:] = np.float32(q)
         mujoco.mj_kinematics(model, host)
-        np.testing.assert_allclose(tip, host.site_xpos[env._tip, :2], atol=2e-6)
+        np.testing.assert_allclose(tip, host.site_xpos[env.robot.tip_site, :2], atol=2e-6)
 
 
 def test_planar_arm_refuses_another_robot(env):
     model = copy.deepcopy(env.sim.mj_model)
-    planar_arm(model, env._tip)  # the shipped arm is accepted
+    planar_arm(model, env.robot.tip_site)  # the shipped arm is accepted
     model.jnt_axis[1] = [0, 1, 0]
     with pytest.raises(ValueError, match="hinges about z"):
-        planar_arm(model, env._tip)
+        planar_arm(model, env.robot.tip_site)
 
 
 def test_observation_layout(traj):
@@ -127,7 +127,7 @@ def test_targets_uniform_in_reach_disk(env, vreset):
     # at the arm's height, where the fingertip is (MuJoCo C's kinematics on the host model)
     host = mujoco.MjData(env.sim.mj_model)
     mujoco.mj_forward(env.sim.mj_model, host)
-    np.testing.assert_allclose(target[:, 2], host.site_xpos[env._tip, 2], atol=1e-6)
+    np.testing.assert_allclose(target[:, 2], host.site_xpos[env.robot.tip_site, 2], atol=1e-6)
 
 
 def test_target_radius_param_bounds_targets(env, vreset):

@@ -31,7 +31,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxenvs.tasks.hexapod import HexapodWalk, WalkConfig, quat_to_mat
+from jaxenvs.robots.hexapod import quat_to_mat
+from jaxenvs.tasks.hexapod import HexapodWalk, WalkConfig
 
 CONVERGED = {"solver_iterations": 100, "ls_iterations": 50}
 #: (physics, config overrides, params edit)

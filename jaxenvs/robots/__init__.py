@@ -1,4 +1,5 @@
-"""The robot layer: one MJCF per robot family, shipped as package data."""
+"""The robot layer: one folder per robot family, holding its MJCF (package data) and its
+robot module (:mod:`jaxenvs.robots.base` says what a robot is)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,10 @@ ROBOT_DIR = Path(__file__).resolve().parent
 
 
 def robot_xml(name: str) -> Path:
-    """Path of the shipped MJCF for robot ``name`` (e.g. ``"cartpole"``)."""
-    path = ROBOT_DIR / f"{name}.xml"
-    if not path.is_file():
-        known = sorted(p.stem for p in ROBOT_DIR.glob("*.xml"))
+    """Path of the shipped MJCF ``name`` (e.g. ``"cartpole"``, ``"hexapod_leg"``), found in
+    its robot family's folder."""
+    found = sorted(ROBOT_DIR.glob(f"*/{name}.xml"))
+    if len(found) != 1:
+        known = sorted(p.stem for p in ROBOT_DIR.glob("*/*.xml"))
         raise ValueError(f"unknown robot {name!r}; shipped robots: {known}")
-    return path
+    return found[0]

@@ -1,9 +1,10 @@
-"""Cartpole tasks: four tasks over one robot (``robots/cartpole.xml``).
+"""Cartpole tasks: four tasks over one robot (:mod:`jaxenvs.robots.cartpole`).
 
-Robot: a 1.0 kg cart on an unlimited, frictionless slider and a 0.1 kg uniform 1.0 m pole
-on a hinge (angle 0 = upright, positive tilts the tip toward +x). One motor on the
-slider: ``ctrl`` in [-1, 1] times ``actuator_gear`` (10 N by default) is the cart force.
-No contacts, no constraints, Euler integration: episodes end on bounds, not on limits.
+The robot (cart, pole, motor, encoders, randomisable fields) is described in
+:mod:`jaxenvs.robots.cartpole`: ``ctrl`` in [-1, 1] times ``actuator_gear`` (10 N by
+default) is the cart force; no contacts, no constraints, Euler integration: episodes end on
+bounds, not on limits. Each task's observation is :meth:`observation` of the robot's
+encoder readings (and, where it needs one, the task's own state).
 
 =====================  ==============================================================
 ``CartPole-v0``         classic control (Gymnasium CartPole-v1 semantics)
@@ -15,32 +16,29 @@ No contacts, no constraints, Euler integration: episodes end on bounds, not on l
 Params (the randomisable physics, a pytree passed to reset/step): ``model`` holds MJX
 model fields ``body_mass``, ``body_inertia``, ``dof_damping`` and ``actuator_gear``.
 ``sample_params`` (used by ``make(..., num_envs=N, randomize=True)`` at each env's every
-reset) draws them from every cartpole config's randomisation ranges: cart and pole mass
-and inertia scaled together by ``mass_scale`` (one factor per body), slider and hinge
-damping plus an offset uniform in ``damping_range`` (their default is 0), the motor's gear
-scaled by ``gain_scale``. No friction: the cartpole has no contacts.
+reset) draws them from every cartpole config's randomisation ranges
+(:class:`~jaxenvs.robots.cartpole.CartpoleRanges`): cart and pole mass and inertia scaled
+together by ``mass_scale`` (one factor per body), slider and hinge damping plus an offset
+uniform in ``damping_range`` (their default is 0), the motor's gear scaled by
+``gain_scale``. No friction: the cartpole has no contacts.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 from mujoco import mjx
 
-from jaxenvs import randomize
 from jaxenvs.config import require
 from jaxenvs.core import Env, NoExtras, TaskConfig
-from jaxenvs.randomize import Range
-from jaxenvs.robots import robot_xml
-from jaxenvs.sim import Sim
+from jaxenvs.robots.base import Readings, RobotTask
+from jaxenvs.robots.cartpole import Cartpole, CartpoleRanges
 from jaxenvs.tasks.rewards import tolerance
-
-MODEL_FIELDS = ("body_mass", "body_inertia", "dof_damping", "actuator_gear")
-SLIDER, HINGE = 0, 1
 
 
 class CartpoleParams(struct.PyTreeNode):
@@ -49,58 +47,28 @@ class CartpoleParams(struct.PyTreeNode):
     model: dict[str, jax.Array]
 
 
-def _cartpole_sim(timestep: float, substeps: int) -> Sim:
-    return Sim(robot_xml("cartpole"), timestep=timestep, substeps=substeps)
-
-
-def _default_params(sim: Sim, force: float | None = None) -> CartpoleParams:
-    fields = sim.default_fields(MODEL_FIELDS)
+def _default_params(robot: Cartpole, sim: Any, force: float | None = None) -> CartpoleParams:
+    fields = robot.default_fields(sim)
     if force is not None:
         fields["actuator_gear"] = fields["actuator_gear"].at[0, 0].set(force)
     return CartpoleParams(model=fields)
 
 
 @dataclasses.dataclass(frozen=True)
-class CartpoleRandomization(TaskConfig):
+class CartpoleRandomization(CartpoleRanges, TaskConfig):
     """Domain-randomisation ranges shared by every cartpole config (used only with
-    ``randomize=True``; see the module docstring).
-
-    Attributes:
-      mass_scale: factor on the cart's and the pole's mass and inertia.
-      damping_range: offset added to the slider's (N s/m) and hinge's (N m s/rad) damping.
-      gain_scale: factor on the motor's gear (force per unit command).
-    """
-
-    mass_scale: Range = (0.8, 1.2)
-    damping_range: Range = (0.0, 0.01)
-    gain_scale: Range = (0.9, 1.1)
-
-    def validate(self) -> None:
-        super().validate()
-        randomize.check_range("mass_scale", self.mass_scale, positive=True)
-        randomize.check_range("damping_range", self.damping_range, min_low=0.0)
-        randomize.check_range("gain_scale", self.gain_scale, positive=True)
+    ``randomize=True``): the robot's :class:`~jaxenvs.robots.cartpole.CartpoleRanges`
+    (``mass_scale``, ``damping_range``, ``gain_scale``) as config fields."""
 
 
-def sample_cartpole_params(
-    key: jax.Array, base: CartpoleParams, config: CartpoleRandomization
-) -> CartpoleParams:
-    """Params drawn from ``config``'s ranges around ``base`` (the task's default params)."""
-    mass_key, damping_key, gain_key = jax.random.split(key, 3)
-    fields = dict(base.model)
-    fields["body_mass"], fields["body_inertia"] = randomize.scale_mass(
-        mass_key, fields["body_mass"], fields["body_inertia"], config.mass_scale
-    )
-    fields["dof_damping"] = randomize.offset(
-        damping_key, fields["dof_damping"], config.damping_range
-    )
-    fields["actuator_gear"] = randomize.scale(gain_key, fields["actuator_gear"], config.gain_scale)
-    return CartpoleParams(model=fields)
+class _CartpoleTask(RobotTask):
+    """What the four cartpole tasks share: the robot, params, the engine choice."""
 
-
-def _state_obs(data: mjx.Data) -> jax.Array:
-    """Cart position, cart velocity, pole angle, pole angular velocity."""
-    return jnp.stack([data.qpos[SLIDER], data.qvel[SLIDER], data.qpos[HINGE], data.qvel[HINGE]])
+    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
+    #: "physics='auto' on a CPU")
+    cpu_physics = "c"
+    cpu_mjx_from: int | None = 4096
+    robot: Cartpole
 
 
 # --------------------------------------------------------------------------- CartPole-v0
@@ -133,7 +101,7 @@ class CartPoleConfig(CartpoleRandomization):
         require(self.init_range >= 0, "init_range", "must be >= 0")
 
 
-class CartPole(Env[CartPoleConfig]):
+class CartPole(_CartpoleTask, Env[CartPoleConfig]):
     """``CartPole-v0``: keep the pole up by pushing the cart left or right.
 
     * Observation (4): cart position, cart velocity, pole angle, pole angular velocity.
@@ -144,28 +112,17 @@ class CartPole(Env[CartPoleConfig]):
     * Timing: 0.02 s per step (MJX semi-implicit Euler, one 0.02 s substep).
     """
 
-    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
-    #: "physics='auto' on a CPU")
-    cpu_physics = "c"
-    cpu_mjx_from = 4096
-
     scan_unroll = 5
 
     def __init__(self, config: CartPoleConfig | None = None) -> None:
         config = config or CartPoleConfig()
-        super().__init__(config, _cartpole_sim(config.timestep, config.substeps))
-        self._params = _default_params(self.sim, config.force)
+        self.robot = Cartpole()
+        super().__init__(config, self.robot.make_sim(config.timestep, config.substeps))
+        self._params = _default_params(self.robot, self.sim, config.force)
 
     observation_size = 4
     action_size = 2
     discrete = True
-
-    @property
-    def default_params(self) -> CartpoleParams:
-        return self._params
-
-    def sample_params(self, key: jax.Array) -> CartpoleParams:
-        return sample_cartpole_params(key, self._params, self.config)
 
     def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, NoExtras]:
         r = self.config.init_range
@@ -181,13 +138,12 @@ class CartPole(Env[CartPoleConfig]):
         action: jax.Array,
         params: CartpoleParams,
     ) -> tuple[mjx.Data, NoExtras]:
-        ctrl = jnp.where(action == 1, 1.0, -1.0)[None]
+        ctrl = self.robot.command(jnp.where(action == 1, 1.0, -1.0)[None])
         return self.sim.step(self.sim.model_with(params.model), data, ctrl), extras
 
-    def _observe(
-        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: CartpoleParams
-    ) -> jax.Array:
-        return _state_obs(data)
+    def observation(self, readings: Readings, task: NoExtras) -> jax.Array:
+        """Cart position, cart velocity, pole angle, pole angular velocity."""
+        return self.robot.state(readings)
 
     def _reward(
         self,
@@ -201,9 +157,9 @@ class CartPole(Env[CartPoleConfig]):
 
     def _terminated(self, data: mjx.Data, extras: NoExtras, params: CartpoleParams) -> jax.Array:
         c = self.config
-        return (jnp.abs(data.qpos[SLIDER]) > c.x_threshold) | (
-            jnp.abs(data.qpos[HINGE]) > c.theta_threshold
-        )
+        readings = self.robot.sense(data)
+        x, theta = self.robot.cart(readings)[0], self.robot.pole(readings)[0]
+        return (jnp.abs(x) > c.x_threshold) | (jnp.abs(theta) > c.theta_threshold)
 
 
 # --------------------------------------------------------------------- CartpoleStayUp-v0
@@ -277,7 +233,7 @@ class StayUpExtras(struct.PyTreeNode):
     command: jax.Array
 
 
-class CartpoleStayUp(Env[StayUpConfig]):
+class CartpoleStayUp(_CartpoleTask, Env[StayUpConfig]):
     """``CartpoleStayUp-v0``: keep the pole up by nudging the cart's commanded velocity.
 
     * Observation (4): cart position, cart velocity, pole angle, pole angular velocity.
@@ -296,17 +252,13 @@ class CartpoleStayUp(Env[StayUpConfig]):
     ``extras`` (:class:`StayUpExtras`) holds the commanded cart velocity.
     """
 
-    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
-    #: "physics='auto' on a CPU")
-    cpu_physics = "c"
-    cpu_mjx_from = 4096
-
     metric_keys = ("command",)
 
     def __init__(self, config: StayUpConfig | None = None) -> None:
         config = config or StayUpConfig()
-        super().__init__(config, _cartpole_sim(config.timestep, config.substeps))
-        self._params = _default_params(self.sim, config.max_force)
+        self.robot = Cartpole()
+        super().__init__(config, self.robot.make_sim(config.timestep, config.substeps))
+        self._params = _default_params(self.robot, self.sim, config.max_force)
         steps = [-1.0, 1.0, -10.0, 10.0][: config.n_actions]
         self._increments = jnp.asarray(steps, jnp.float32) * config.pos_step
 
@@ -317,13 +269,6 @@ class CartpoleStayUp(Env[StayUpConfig]):
         return self.config.n_actions
 
     discrete = True
-
-    @property
-    def default_params(self) -> CartpoleParams:
-        return self._params
-
-    def sample_params(self, key: jax.Array) -> CartpoleParams:
-        return sample_cartpole_params(key, self._params, self.config)
 
     def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, StayUpExtras]:
         n = self.config.init_noise
@@ -346,16 +291,17 @@ class CartpoleStayUp(Env[StayUpConfig]):
         )
 
         def servo(d: mjx.Data) -> jax.Array:
-            force = c.velocity_gain * (command - d.qvel[SLIDER])
-            return jnp.clip(force / c.max_force, -1.0, 1.0)[None]
+            _, velocity = self.robot.cart(self.robot.sense(d))
+            force = c.velocity_gain * (command - velocity)
+            return self.robot.command(jnp.clip(force / c.max_force, -1.0, 1.0)[None])
 
         model = self.sim.model_with(params.model)
         return self.sim.step_controlled(model, data, servo), StayUpExtras(command=command)
 
-    def _observe(
-        self, key: jax.Array, data: mjx.Data, extras: StayUpExtras, params: CartpoleParams
-    ) -> jax.Array:
-        return _state_obs(data)
+    def observation(self, readings: Readings, task: StayUpExtras) -> jax.Array:
+        """Cart position, cart velocity, pole angle, pole angular velocity (the commanded
+        velocity is not observed)."""
+        return self.robot.state(readings)
 
     def _reward(
         self,
@@ -371,7 +317,8 @@ class CartpoleStayUp(Env[StayUpConfig]):
         self, data: mjx.Data, extras: StayUpExtras, params: CartpoleParams
     ) -> jax.Array:
         c = self.config
-        x, theta = data.qpos[SLIDER], data.qpos[HINGE]
+        readings = self.robot.sense(data)
+        x, theta = self.robot.cart(readings)[0], self.robot.pole(readings)[0]
         return (
             (theta < c.min_pole_angle)
             | (theta > c.max_pole_angle)
@@ -403,7 +350,7 @@ class BalanceConfig(CartpoleRandomization):
         require(self.cart_limit > 0, "cart_limit", "must be positive")
 
 
-class CartpoleBalance(Env[BalanceConfig]):
+class CartpoleBalance(_CartpoleTask, Env[BalanceConfig]):
     """``CartpoleBalance-v0`` / ``CartpoleSwingup-v0`` (``swing_up=True``).
 
     * Observation (5): cart position, cos and sin of the pole angle, cart velocity, pole
@@ -420,27 +367,16 @@ class CartpoleBalance(Env[BalanceConfig]):
     * Timing: 0.01 s per step, one Euler substep.
     """
 
-    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
-    #: "physics='auto' on a CPU")
-    cpu_physics = "c"
-    cpu_mjx_from = 4096
-
     scan_unroll = 5
 
     def __init__(self, config: BalanceConfig | None = None) -> None:
         config = config or BalanceConfig()
-        super().__init__(config, _cartpole_sim(config.timestep, config.substeps))
-        self._params = _default_params(self.sim)
+        self.robot = Cartpole()
+        super().__init__(config, self.robot.make_sim(config.timestep, config.substeps))
+        self._params = _default_params(self.robot, self.sim)
 
     observation_size = 5
     action_size = 1
-
-    @property
-    def default_params(self) -> CartpoleParams:
-        return self._params
-
-    def sample_params(self, key: jax.Array) -> CartpoleParams:
-        return sample_cartpole_params(key, self._params, self.config)
 
     def _init(self, key: jax.Array, params: CartpoleParams) -> tuple[mjx.Data, NoExtras]:
         pos_key, vel_key = jax.random.split(key)
@@ -460,15 +396,14 @@ class CartpoleBalance(Env[BalanceConfig]):
         action: jax.Array,
         params: CartpoleParams,
     ) -> tuple[mjx.Data, NoExtras]:
-        return self.sim.step(self.sim.model_with(params.model), data, action), extras
+        ctrl = self.robot.command(action)
+        return self.sim.step(self.sim.model_with(params.model), data, ctrl), extras
 
-    def _observe(
-        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: CartpoleParams
-    ) -> jax.Array:
-        theta = data.qpos[HINGE]
-        return jnp.stack(
-            [data.qpos[SLIDER], jnp.cos(theta), jnp.sin(theta), data.qvel[SLIDER], data.qvel[HINGE]]
-        )
+    def observation(self, readings: Readings, task: NoExtras) -> jax.Array:
+        """Cart position, cos and sin of the pole angle, cart velocity, pole angular
+        velocity."""
+        (x, x_dot), (theta, theta_dot) = self.robot.cart(readings), self.robot.pole(readings)
+        return jnp.stack([x, jnp.cos(theta), jnp.sin(theta), x_dot, theta_dot])
 
     def _reward(
         self,
@@ -478,15 +413,17 @@ class CartpoleBalance(Env[BalanceConfig]):
         extras: NoExtras,
         params: CartpoleParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
-        x, theta = data.qpos[SLIDER], data.qpos[HINGE]
+        readings = self.robot.sense(data)
+        (x, _), (theta, theta_dot) = self.robot.cart(readings), self.robot.pole(readings)
         upright = (jnp.cos(theta) + 1.0) / 2.0
         centered = (1.0 + tolerance(x, margin=2.0)) / 2.0
         small_control = (
             4.0 + tolerance(action[0], margin=1.0, value_at_margin=0.0, sigmoid="quadratic")
         ) / 5.0
-        small_velocity = (1.0 + tolerance(data.qvel[HINGE], margin=5.0)) / 2.0
+        small_velocity = (1.0 + tolerance(theta_dot, margin=5.0)) / 2.0
         reward = upright * centered * small_control * small_velocity
         return reward.astype(jnp.float32), {}
 
     def _terminated(self, data: mjx.Data, extras: NoExtras, params: CartpoleParams) -> jax.Array:
-        return jnp.abs(data.qpos[SLIDER]) > self.config.cart_limit
+        x, _ = self.robot.cart(self.robot.sense(data))
+        return jnp.abs(x) > self.config.cart_limit

@@ -1,32 +1,33 @@
-"""Hexapod tasks: a six-legged walker (``robots/hexapod.xml``) and one of its legs on a
-fixed base (``robots/hexapod_leg.xml``).
-
-Robot: a 1.0 kg box body (24 x 16 x 5 cm) and six legs of three servo-driven joints in the
-proportions of small hobby hexapod kits: hip yaw (+-0.46 rad), femur and tibia pitch
-(+-1.57 rad, positive lifts the leg); coxa 4 cm, femur 8 cm, foot tip 13.2 cm below the
-knee; about 2.0 kg in all. Servos are MuJoCo position actuators (kp 20 N m/rad, torque
-limited to +-2 N m, joint damping 0.3, armature 0.005 kg m^2). Actions in [-1, 1] map
-linearly to joint POSITION targets over the joint range (0 = the standing pose: coxa and
-femur horizontal, tibia vertical): a zero action holds a stable stance.
+"""Hexapod tasks over :mod:`jaxenvs.robots.hexapod`: the six-legged walker and one of its
+legs on a fixed base (the rig).
 
 =====================  =============================================================
 ``HexapodWalk-v0``      walk toward a target sampled at reset; falls end the episode
 ``HexapodOneLeg-v0``    put one leg's foot tip on a reachable target; no contacts
 =====================  =============================================================
 
+The robot (geometry, servos, sensors, randomisable fields) is described in
+:mod:`jaxenvs.robots.hexapod`. Actions in [-1, 1] are the robot's command map: joint
+POSITION targets over each joint range (0 = the standing pose): a zero action holds a
+stable stance. Each task's observation is :meth:`observation` of the robot's readings
+(:meth:`~jaxenvs.robots.base.Robot.sense`) and the task's own state (:meth:`task_state`:
+the target).
+
 Physics for MJX speed on CPU (measurements in benchmarks/NOTES.md): the only collisions
 are six explicit foot-floor pairs (condim 3, pyramidal cone); joints are unlimited (no
 limit rows: the servo range is the joint range); Euler integration with damping implicit;
 the CG solver (``solver_iterations`` and ``ls_iterations`` from the config) with a SPARSE
 mass matrix, so that no step calls LAPACK (MJX's Newton solver and dense factorisations
-do).
+do). MuJoCo does not evaluate the MJCF's sensors in the physics steps (no task reads
+``sensordata``).
 
 Params (``HexapodParams``): ``model`` holds MJX model fields ``body_mass``,
 ``body_inertia``, ``dof_damping``, ``actuator_gainprm``, ``actuator_biasprm`` and
 (walker only) ``pair_friction``; ``target_range`` is the task's target range.
-``sample_params`` scales each body's mass and inertia together by ``mass_scale``, each
-foot pair's friction by ``friction_scale``, each servo's kp (gain and bias together) by
-``gain_scale`` and each joint's damping by ``damping_scale``.
+``sample_params`` draws ``model`` from the config's ranges (:class:`HexapodRanges`): each
+body's mass and inertia together by ``mass_scale``, each foot pair's friction by
+``friction_scale``, each servo's kp (gain and bias together) by ``gain_scale`` and each
+joint's damping by ``damping_scale``.
 """
 
 from __future__ import annotations
@@ -45,14 +46,9 @@ from jaxenvs import randomize
 from jaxenvs.config import require
 from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
-from jaxenvs.robots import robot_xml
-from jaxenvs.sim import Sim
+from jaxenvs.robots.base import Readings, RobotTask, gravity_in_body, world_to_body
+from jaxenvs.robots.hexapod import JOINT_RANGE, Hexapod, HexapodLeg, HexapodRanges, leg_tip
 
-COXA, FEMUR, TIP = 0.04, 0.08, 0.132  # m: hip->femur joint, femur->tibia joint, knee->tip
-LEG_RANGE = (0.46, 1.57, 1.57)  # half-ranges of hip yaw, femur, tibia (rad)
-#: a host constant (numpy): a JAX array here would start JAX's backends at import time
-JOINT_RANGE = np.asarray(LEG_RANGE * 6, np.float32)
-STAND_HEIGHT = 0.135  # torso height when standing on all six feet at zero angles (m)
 #: HexapodWalk-v0's observation noise at ``obs_noise=1``, per entry: joint angles (rad),
 #: joint velocities (rad/s), height (m), gravity direction, body velocity (m/s), body
 #: angular velocity (rad/s), target direction
@@ -67,15 +63,6 @@ OBS_NOISE = np.concatenate(
         np.full(3, 0.02),
     ]
 ).astype(np.float32)
-WALK_FIELDS = (
-    "body_mass",
-    "body_inertia",
-    "dof_damping",
-    "actuator_gainprm",
-    "actuator_biasprm",
-    "pair_friction",
-)
-LEG_FIELDS = WALK_FIELDS[:-1]
 
 
 class HexapodParams(struct.PyTreeNode):
@@ -92,72 +79,18 @@ class HexapodParams(struct.PyTreeNode):
 
 
 @dataclasses.dataclass(frozen=True)
-class HexapodRandomization(TaskConfig):
-    """Fields shared by both hexapod configs.
+class HexapodRandomization(HexapodRanges, TaskConfig):
+    """Fields shared by both hexapod configs: the robot's randomisation ranges
+    (:class:`~jaxenvs.robots.hexapod.HexapodRanges`: ``mass_scale``, ``friction_scale``,
+    ``gain_scale``, ``damping_scale``) and the physics timing.
 
     Attributes:
       timestep, substeps: physics; the control period is their product (0.05 s, what
         hobby servos sustain).
-      mass_scale, friction_scale, gain_scale, damping_scale: randomisation ranges
-        (factors on the defaults, one draw per body, foot pair, servo, joint).
     """
 
     timestep: float = 0.01
     substeps: int = 5
-    mass_scale: Range = (0.8, 1.2)
-    friction_scale: Range = (0.7, 1.3)
-    gain_scale: Range = (0.8, 1.2)
-    damping_scale: Range = (0.7, 1.3)
-
-    def validate(self) -> None:
-        super().validate()
-        for name in ("mass_scale", "friction_scale", "gain_scale", "damping_scale"):
-            randomize.check_range(name, getattr(self, name), positive=True)
-
-
-def quat_to_mat(q: jax.Array) -> jax.Array:
-    """Rotation matrix (body -> world) of a unit quaternion ``(w, x, y, z)``."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return jnp.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def leg_tip(q: jax.Array) -> jax.Array:
-    """Forward kinematics of one leg: foot tip in the hip's frame for angles ``q`` (3,)."""
-    reach = COXA + FEMUR * jnp.cos(q[1]) + TIP * jnp.sin(q[1] + q[2])
-    height = FEMUR * jnp.sin(q[1]) - TIP * jnp.cos(q[1] + q[2])
-    return jnp.stack([reach * jnp.cos(q[0]), reach * jnp.sin(q[0]), height])
-
-
-def servo_targets(action: jax.Array) -> jax.Array:
-    """Joint position targets (rad) of actions in [-1, 1]: linear over each joint range."""
-    return action * JOINT_RANGE[: action.shape[0]]
-
-
-def _sample_model(
-    key: jax.Array, model: dict[str, jax.Array], config: HexapodRandomization
-) -> dict[str, jax.Array]:
-    mass_key, friction_key, gain_key, damping_key = jax.random.split(key, 4)
-    fields = dict(model)
-    fields["body_mass"], fields["body_inertia"] = randomize.scale_mass(
-        mass_key, fields["body_mass"], fields["body_inertia"], config.mass_scale
-    )
-    if "pair_friction" in fields:
-        fields["pair_friction"] = randomize.scale(
-            friction_key, fields["pair_friction"], config.friction_scale
-        )
-    kp = randomize.uniform(gain_key, config.gain_scale, fields["actuator_gainprm"].shape[:1])
-    fields["actuator_gainprm"] = fields["actuator_gainprm"].at[:, 0].multiply(kp)
-    fields["actuator_biasprm"] = fields["actuator_biasprm"].at[:, 1].multiply(kp)
-    fields["dof_damping"] = randomize.scale(
-        damping_key, fields["dof_damping"], config.damping_scale
-    )
-    return fields
 
 
 def _solver_edit(iterations: int, ls_iterations: int):  # type: ignore[no-untyped-def]
@@ -225,14 +158,16 @@ class WalkConfig(HexapodRandomization):
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
 
 
-class HexapodWalk(Env[WalkConfig]):
+class HexapodWalk(RobotTask, Env[WalkConfig]):
     """``HexapodWalk-v0``: walk the hexapod to a target on the floor.
 
-    * Observation (49): 18 joint angles (rad; legs lf, lm, lr, rf, rm, rr, each hip,
-      femur, tibia), 18 joint velocities, body height (m), gravity direction in the body
-      frame (3), body linear velocity in the body frame (3, m/s), body angular velocity
-      in the body frame (3, rad/s), unit direction to the target in the body frame (3;
-      the target is on the floor, the direction horizontal in world); with
+    * Observation (49), from the robot's readings: 18 joint angles (rad; legs lf, lm,
+      lr, rf, rm, rr, each hip, femur, tibia: the encoders), 18 joint velocities (rad/s),
+      body height (m; privileged ``torso_pos``), gravity direction in the body frame (3,
+      from ``imu_quat``), body linear velocity in the body frame (3, m/s; privileged
+      ``torso_vel``), body angular velocity in the body frame (3, rad/s, ``imu_gyro``),
+      unit direction to the target in the body frame (3; the target is on the floor, the
+      direction horizontal in world, from ``torso_pos`` and ``imu_quat``); with
       ``obs_noise`` > 0, plus Gaussian noise of std ``obs_noise * OBS_NOISE``.
     * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range
       (with ``action_noise`` > 0, Gaussian noise of that std added, then clipped).
@@ -250,8 +185,8 @@ class HexapodWalk(Env[WalkConfig]):
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s.
     """
 
-    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
-    cpu_physics = "c"
+    cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    robot: Hexapod
 
     metric_keys = ("distance", "progress", "energy")
     #: the test battery's vmap-vs-single tolerance: the 6-iteration CG contact solve
@@ -260,28 +195,21 @@ class HexapodWalk(Env[WalkConfig]):
 
     def __init__(self, config: WalkConfig | None = None) -> None:
         config = config or WalkConfig()
-        sim = Sim(
-            robot_xml("hexapod"),
-            timestep=config.timestep,
-            substeps=config.substeps,
+        self.robot = Hexapod()
+        sim = self.robot.make_sim(
+            config.timestep,
+            config.substeps,
             edit=_solver_edit(config.solver_iterations, config.ls_iterations),
         )
         super().__init__(config, sim)
         self._torso = mujoco.mj_name2id(sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, "torso")
         self._params = HexapodParams(
-            model=sim.default_fields(WALK_FIELDS),
+            model=self.robot.default_fields(sim),
             target_range=jnp.asarray(config.target_distance, jnp.float32),
         )
 
     observation_size = 49
     action_size = 18
-
-    @property
-    def default_params(self) -> HexapodParams:
-        return self._params
-
-    def sample_params(self, key: jax.Array) -> HexapodParams:
-        return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
     def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, NoExtras]:
         # one draw for all 21 numbers: each random call is a loop XLA compiles on its own
@@ -292,7 +220,7 @@ class HexapodWalk(Env[WalkConfig]):
         quat = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
         n = c.init_joint_noise
         joints = n * (2.0 * u[1:19] - 1.0)
-        qpos = jnp.concatenate([jnp.array([0.0, 0.0, c.init_height]), quat, joints])
+        qpos = self.robot.qpos(jnp.array([0.0, 0.0, c.init_height]), quat, joints)
         low, high = params.target_range[0], params.target_range[1]
         dist = low + (high - low) * u[19]
         angle = math.pi * (2.0 * u[20] - 1.0)
@@ -312,33 +240,38 @@ class HexapodWalk(Env[WalkConfig]):
         if self.config.action_noise > 0:
             noise = self.config.action_noise * jax.random.normal(key, action.shape)
             action = jnp.clip(action + noise, -1.0, 1.0)
-        return self.sim.step(model, data, servo_targets(action)), extras
+        return self.sim.step(model, data, self.robot.command(action)), extras
+
+    def task_state(self, data: mjx.Data, extras: NoExtras) -> jax.Array:
+        """The task's own input to :meth:`observation`: the target's world (x, y) (m)."""
+        return data.mocap_pos[0, :2]
+
+    def observation(self, readings: Readings, target: jax.Array) -> jax.Array:
+        """The noiseless observation (the layout in the class docstring) of the robot's
+        ``readings`` and the target's world (x, y)."""
+        quat, pos = readings["imu_quat"], readings["torso_pos"]
+        to_target = target - pos[:2]
+        to_target = to_target / jnp.maximum(jnp.linalg.norm(to_target), 1e-6)
+        direction = world_to_body(quat, jnp.concatenate([to_target, jnp.zeros(1)]))
+        return jnp.concatenate(
+            [
+                self.robot.joint_pos(readings),
+                self.robot.joint_vel(readings),
+                pos[2:3],
+                gravity_in_body(quat),
+                readings["torso_vel"],
+                readings["imu_gyro"],
+                direction,
+            ]
+        )
 
     def _observe(
         self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: HexapodParams
     ) -> jax.Array:
-        obs = self._sense(data)
+        obs = self.observation(self.robot.sense(data), self.task_state(data, extras))
         if self.config.obs_noise > 0:
             obs = obs + self.config.obs_noise * OBS_NOISE * jax.random.normal(key, obs.shape)
         return obs
-
-    def _sense(self, data: mjx.Data) -> jax.Array:
-        """The noiseless observation (the layout in the class docstring)."""
-        rot = quat_to_mat(data.qpos[3:7])
-        to_target = data.mocap_pos[0, :2] - data.qpos[:2]
-        to_target = to_target / jnp.maximum(jnp.linalg.norm(to_target), 1e-6)
-        direction = rot.T @ jnp.concatenate([to_target, jnp.zeros(1)])
-        return jnp.concatenate(
-            [
-                data.qpos[7:],
-                data.qvel[6:],
-                data.qpos[2:3],
-                rot.T @ jnp.array([0.0, 0.0, -1.0]),
-                rot.T @ data.qvel[:3],
-                data.qvel[3:6],
-                direction,
-            ]
-        )
 
     def _reward(
         self,
@@ -349,17 +282,17 @@ class HexapodWalk(Env[WalkConfig]):
         params: HexapodParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
         c = self.config
-        target = data.mocap_pos[0, :2]
-        d_prev = jnp.linalg.norm(target - prev.qpos[:2])
-        dist = jnp.linalg.norm(target - data.qpos[:2])
+        before, now = self.robot.sense(prev), self.robot.sense(data)
+        target = self.task_state(data, extras)
+        d_prev = jnp.linalg.norm(target - before["torso_pos"][:2])
+        dist = jnp.linalg.norm(target - now["torso_pos"][:2])
         progress = (d_prev - dist) / self.control_dt
-        energy = jnp.sum(jnp.abs(data.actuator_force * data.qvel[6:]))
-        upright = quat_to_mat(data.qpos[3:7])[2, 2]
-        spin = jnp.sum(jnp.square(data.qvel[3:5]))  # free joint: body-frame rates
+        energy = jnp.sum(jnp.abs(data.actuator_force * self.robot.joint_vel(now)))
+        spin = jnp.sum(jnp.square(now["imu_gyro"][:2]))  # body-frame roll and pitch rates
         reward = (
             c.progress_weight * progress
             - c.energy_weight * energy
-            - c.tilt_weight * (1.0 - upright)
+            - c.tilt_weight * (1.0 - self.robot.upright(now))
             - c.spin_weight * spin
             + c.alive_bonus
         )
@@ -369,8 +302,8 @@ class HexapodWalk(Env[WalkConfig]):
     def _terminated(self, data: mjx.Data, extras: NoExtras, params: HexapodParams) -> jax.Array:
         """Fallen: the body below ``min_height`` or tilted past ``min_upright``."""
         c = self.config
-        upright = quat_to_mat(data.qpos[3:7])[2, 2]
-        return (data.qpos[2] < c.min_height) | (upright < c.min_upright)
+        now = self.robot.sense(data)
+        return (self.robot.height(now) < c.min_height) | (self.robot.upright(now) < c.min_upright)
 
 
 # ------------------------------------------------------------------------ HexapodOneLeg-v0
@@ -405,11 +338,11 @@ class OneLegExtras(struct.PyTreeNode):
     target_q: jax.Array
 
 
-class HexapodOneLeg(Env[OneLegConfig]):
+class HexapodOneLeg(RobotTask, Env[OneLegConfig]):
     """``HexapodOneLeg-v0``: one hexapod leg on a fixed base reaches for a target.
 
-    * Observation (9): the 3 joint angles (rad), 3 joint velocities (rad/s), the target
-      (3, m, in the hip's frame).
+    * Observation (9): the 3 joint angles (rad, the encoders), 3 joint velocities
+      (rad/s), the target (3, m, in the hip's frame).
     * Action: Box(3) in [-1, 1]: joint position targets, linear over each joint's range.
     * Reward: ``-|tip - target|^2`` (m^2), the foot tip from exact forward kinematics.
     * Termination: none. Truncation: 100 steps.
@@ -420,30 +353,22 @@ class HexapodOneLeg(Env[OneLegConfig]):
       contacts or constraints.
     """
 
-    #: physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
-    cpu_physics = "c"
+    cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    robot: HexapodLeg
 
     metric_keys = ("distance",)
 
     def __init__(self, config: OneLegConfig | None = None) -> None:
         config = config or OneLegConfig()
-        super().__init__(config, Sim(robot_xml("hexapod_leg"), config.timestep, config.substeps))
-        base = mujoco.mj_name2id(self.sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, "base")
-        self._hip = jnp.asarray(self.sim.mj_model.body_pos[base], jnp.float32)
+        self.robot = HexapodLeg()
+        super().__init__(config, self.robot.make_sim(config.timestep, config.substeps))
         self._params = HexapodParams(
-            model=self.sim.default_fields(LEG_FIELDS),
+            model=self.robot.default_fields(self.sim),
             target_range=jnp.asarray(config.target_fraction, jnp.float32),
         )
 
     observation_size = 9
     action_size = 3
-
-    @property
-    def default_params(self) -> HexapodParams:
-        return self._params
-
-    def sample_params(self, key: jax.Array) -> HexapodParams:
-        return self._params.replace(model=_sample_model(key, self._params.model, self.config))
 
     def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, OneLegExtras]:
         u = jax.random.uniform(key, (6,))  # one draw: see HexapodWalk._init
@@ -452,13 +377,17 @@ class HexapodOneLeg(Env[OneLegConfig]):
         low, high = params.target_range[0], params.target_range[1]
         fraction = low + (high - low) * u[3:]
         target_q = fraction * JOINT_RANGE[:3]
-        mocap = (leg_tip(target_q) + self._hip)[None]
+        mocap = (leg_tip(target_q) + self.robot.hip)[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(3), mocap_pos=mocap)
         return data, OneLegExtras(target_q=target_q)
 
     def target(self, data: mjx.Data) -> jax.Array:
         """The target in the hip's frame (m)."""
-        return data.mocap_pos[0] - self._hip
+        return data.mocap_pos[0] - self.robot.hip
+
+    def task_state(self, data: mjx.Data, extras: OneLegExtras) -> jax.Array:
+        """The task's own input to :meth:`observation`: the target in the hip's frame."""
+        return self.target(data)
 
     def _act(
         self,
@@ -469,12 +398,14 @@ class HexapodOneLeg(Env[OneLegConfig]):
         params: HexapodParams,
     ) -> tuple[mjx.Data, OneLegExtras]:
         model = self.sim.model_with(params.model)
-        return self.sim.step(model, data, servo_targets(action)), extras
+        return self.sim.step(model, data, self.robot.command(action)), extras
 
-    def _observe(
-        self, key: jax.Array, data: mjx.Data, extras: OneLegExtras, params: HexapodParams
-    ) -> jax.Array:
-        return jnp.concatenate([data.qpos, data.qvel, self.target(data)])
+    def observation(self, readings: Readings, target: jax.Array) -> jax.Array:
+        """The observation (class docstring) of the encoders' ``readings`` and the target
+        in the hip's frame."""
+        return jnp.concatenate(
+            [self.robot.joint_pos(readings), self.robot.joint_vel(readings), target]
+        )
 
     def _reward(
         self,
@@ -484,6 +415,6 @@ class HexapodOneLeg(Env[OneLegConfig]):
         extras: OneLegExtras,
         params: HexapodParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
-        err = leg_tip(data.qpos) - self.target(data)
+        err = leg_tip(self.robot.joint_pos(self.robot.sense(data))) - self.target(data)
         sq = jnp.sum(err * err)
         return -sq, {"distance": jnp.sqrt(sq)}
