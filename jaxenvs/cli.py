@@ -1,4 +1,5 @@
-"""The ``jaxenvs`` command line: list, train, eval, compare, render, bench, view, export.
+"""The ``jaxenvs`` command line: list, train, eval, compare, render, bench, view, export,
+robot, deploy.
 
 Each subcommand lives in its own module under ``jaxenvs.commands`` exposing
 ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``. Errors the user
@@ -13,7 +14,18 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-COMMANDS = ("list", "train", "eval", "compare", "render", "bench", "view", "export")
+COMMANDS = (
+    "list",
+    "train",
+    "eval",
+    "compare",
+    "render",
+    "bench",
+    "view",
+    "export",
+    "robot",
+    "deploy",
+)
 
 
 def _module(name: str):  # type: ignore[no-untyped-def]
