@@ -8,6 +8,7 @@ import json
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +70,10 @@ def _start_sim(args: argparse.Namespace) -> subprocess.Popen[str]:
         "--seed",
         str(args.seed),
     ]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    errors = tempfile.TemporaryFile("w+")
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errors, text=True)
+    proc.errors = errors  # type: ignore[attr-defined]
+    return proc
 
 
 def _address_of(proc: subprocess.Popen[str]) -> str:
@@ -77,7 +81,9 @@ def _address_of(proc: subprocess.Popen[str]) -> str:
     line = proc.stdout.readline().strip()
     if not line.startswith("listening on "):
         proc.wait(5)
-        raise ValueError(f"the simulated robot did not start (exit status {proc.returncode})")
+        proc.errors.seek(0)  # type: ignore[attr-defined]
+        last = (proc.errors.read().strip().splitlines() or ["no message"])[-1]  # type: ignore[attr-defined]
+        raise ValueError(f"the simulated robot did not start: {last}")
     return line.removeprefix("listening on ")
 
 
@@ -171,18 +177,18 @@ def _drive(
 ) -> Any:
     from jaxenvs.deploy import loop
 
+    model = env.sim.physics_mj_model
+    truth = {
+        "qpos": model.qpos0.copy(),
+        "qvel": np.zeros(model.nv),
+        "mocap_pos": model.body_pos[model.body_mocapid >= 0].copy(),
+    }
+    host.warm(spec.sizes(), truth)  # compile before the robot's clock starts
     theirs = robot.connect()
     spec.check_matches(theirs)
-    model = env.sim.physics_mj_model
-    truth = None
     if robot.privileged:
         robot.set_state_sizes(model.nq, model.nv, model.nmocap)
-        truth = {
-            "qpos": model.qpos0.copy(),
-            "qvel": model.qpos0[: model.nv] * 0.0,
-            "mocap_pos": model.body_pos[model.body_mocapid >= 0].copy(),
-        }
-    host.warm(spec.sizes(), truth)
+    print(f"running {spec.env_id} on {robot.address} for {opts.seconds:g} s", flush=True)
     if log is not None:
         log.write("/robot/hello", {"privileged": robot.privileged, **theirs.to_json()})
     return loop.run(robot, host, policy, opts, log, commands)

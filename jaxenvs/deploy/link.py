@@ -43,6 +43,7 @@ class TcpRobot:
         self.privileged = False
         self._latest: SensorFrame | None = None
         self._truth: tuple[int, dict[str, np.ndarray]] | None = None
+        self._new_truths: list[tuple[int, dict[str, np.ndarray]]] = []
         self._sizes: dict[str, int] = {}
         self._dims: tuple[int, int, int] = (0, 0, 0)
         self._ended = ""
@@ -76,9 +77,11 @@ class TcpRobot:
         self._poll()
         return self._latest
 
-    def truth(self) -> tuple[int, dict[str, np.ndarray]] | None:
-        """The newest privileged ground truth ``(seq, {"qpos", "qvel", "mocap_pos"})``."""
-        return self._truth
+    def truths(self) -> list[tuple[int, dict[str, np.ndarray]]]:
+        """The privileged ground truths ``(seq, {"qpos", "qvel", "mocap_pos"})`` received
+        since the last call, oldest first."""
+        out, self._new_truths = self._new_truths, []
+        return out
 
     def send(self, seq: int, action: np.ndarray) -> None:
         self._send(wire.command(seq, action))
@@ -177,6 +180,7 @@ class TcpRobot:
                 if isinstance(seq, int) and seq <= last:
                     raise wire.BadMessage("stale", f"state {seq} after {last}")
                 self._truth = (int(seq), wire.parse_state(msg, *self._dims))  # type: ignore[arg-type]
+                self._new_truths.append(self._truth)
             elif kind == "bye":
                 counts = msg.get("counts")
                 self.robot_counts = dict(counts) if isinstance(counts, dict) else {}

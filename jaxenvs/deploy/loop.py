@@ -203,20 +203,20 @@ def _check_frame(link: Any, rec: Record, opts: LoopOptions, now: float) -> Any:
 
 
 def _account_truth(link: Any, st: _Step, rec: Record, log: Any) -> None:
-    truth = link.truth() if hasattr(link, "truth") else None
-    if truth is None or (st.truth is not None and truth[0] == st.truth[0]):
-        return
-    if log is not None:
-        log.write("/robot/state", {"seq": truth[0], **truth[1]})
-    if st.truth is not None and st.action is not None:
-        task, reward, term = st.host.of_truth(st.truth[1], truth[1], st.action)
-        rec.ret = (rec.ret or 0.0) + reward
-        rec.terminated = rec.terminated or term
+    """Reward and termination of every ground-truth state received since the last step
+    (with the action then in force), and the task's state of the newest."""
+    for truth in link.truths() if hasattr(link, "truths") else []:
+        if log is not None:
+            log.write("/robot/state", {"seq": truth[0], **truth[1]})
+        prev = truth if st.truth is None else st.truth
+        action = st.host.zero_action if st.action is None else st.action
+        task, reward, term = st.host.of_truth(prev[1], truth[1], action)
+        if st.truth is not None and st.action is not None and not rec.terminated:
+            rec.ret = (rec.ret or 0.0) + reward
+            rec.terminated = term
         if st.commands is None:
             st.task = task
-    elif st.commands is None:
-        st.task = st.host.of_truth(truth[1], truth[1], st.host.zero_action)[0]
-    st.truth = truth
+        st.truth = truth
 
 
 def _one_step(

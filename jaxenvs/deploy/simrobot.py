@@ -112,8 +112,8 @@ class _Episode:
         if world.model.nmocap:
             self.data.mocap_pos[:] = start["mocap_pos"]
         mujoco.mj_forward(world.model, self.data)
-        self.reader = wire.FrameReader()
         self.counts: Counter[str] = Counter()
+        self.reader = wire.FrameReader(self.counts)
         self.last_cmd, self.acked, self.last_cmd_step = -1, -1, 0
         self.held = False
         self.steps = 0

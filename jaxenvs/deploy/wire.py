@@ -73,9 +73,10 @@ class FrameReader:
     :class:`FramingError`.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, counts: Counter[str] | None = None) -> None:
         self._buf = bytearray()
-        self.counts: Counter[str] = Counter()
+        #: bad messages by reason (``counts``, when given, is counted into)
+        self.counts: Counter[str] = Counter() if counts is None else counts
 
     def feed(self, data: bytes) -> list[dict[str, Any]]:
         """Decode every whole frame in the bytes received so far."""

@@ -226,7 +226,8 @@ class LinkError(RuntimeError):
 
 # ------------------------------------------------------------------------ task on the host
 class HostTask:
-    """The task's own functions on host arrays, jitted once on the CPU.
+    """The task's own functions on host arrays, jitted once (on the default device: the
+    CPU, where the loop runs).
 
     * :meth:`observe`: ``env.observation(readings, task_state)``: the noiseless
       observation of the sensors' readings and the task's own state;
@@ -240,13 +241,11 @@ class HostTask:
         import jax
 
         self.env = env
-        cpu = jax.devices("cpu")[0]
-        with jax.default_device(cpu):
-            self._extras = env.reset(jax.random.key(seed)).extras
+        self._extras = env.reset(jax.random.key(seed)).extras
         self._params = env.default_params
-        self._obs = jax.jit(env.observation, device=cpu)
-        self._act = jax.jit(env.actuator_action, device=cpu)
-        self._truth_fns = jax.jit(self._of_truth, device=cpu)
+        self._obs = jax.jit(env.observation)
+        self._act = jax.jit(env.actuator_action)
+        self._truth_fns = jax.jit(self._of_truth)
 
     @property
     def zero_action(self) -> np.ndarray:
