@@ -175,6 +175,8 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
 def _drive(
     robot: Any, spec: Any, host: Any, env: Any, policy: Any, opts: Any, log: Any, commands: Any
 ) -> Any:
+    import numpy as np
+
     from jaxenvs.deploy import loop
 
     model = env.sim.physics_mj_model
