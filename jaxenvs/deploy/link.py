@@ -149,6 +149,8 @@ class TcpRobot:
                 data = self.sock.recv(1 << 16)
             except (BlockingIOError, TimeoutError, InterruptedError):
                 return
+            except ConnectionResetError:
+                raise LinkError("the robot closed the link (connection reset)") from None
             except OSError as err:
                 raise LinkError(f"link lost ({err.strerror or err})") from None
             if not data:
