@@ -48,6 +48,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="stop after this long without sensors (default 10 periods)",
     )
     parser.add_argument("--seed", type=int, default=0, help="sim: initial state, noise")
+    parser.add_argument(
+        "--realtime",
+        action="store_true",
+        help="run the loop (and a sim robot) under SCHED_FIFO (Linux, CAP_SYS_NICE)",
+    )
 
 
 def _start_sim(args: argparse.Namespace) -> subprocess.Popen[str]:
@@ -152,7 +157,7 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
     robot = link_mod.TcpRobot(address)
     log = LogWriter(args.log) if args.log else None
     try:
-        rec = _drive(robot, spec, host, env, policy, opts, log, commands)
+        rec = _drive(robot, spec, host, env, policy, opts, log, commands, args.realtime)
     except LinkError as err:
         rec = loop.Record(dt=env.control_dt, error=str(err))
     finally:
@@ -173,7 +178,15 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
 
 
 def _drive(
-    robot: Any, spec: Any, host: Any, env: Any, policy: Any, opts: Any, log: Any, commands: Any
+    robot: Any,
+    spec: Any,
+    host: Any,
+    env: Any,
+    policy: Any,
+    opts: Any,
+    log: Any,
+    commands: Any,
+    realtime: bool,
 ) -> Any:
     import numpy as np
 
@@ -190,7 +203,10 @@ def _drive(
     spec.check_matches(theirs)
     if robot.privileged:
         robot.set_state_sizes(model.nq, model.nv, model.nmocap)
-    print(f"running {spec.env_id} on {robot.address} for {opts.seconds:g} s", flush=True)
+    priority = loop.raise_priority() if realtime else "normal priority"
+    print(
+        f"running {spec.env_id} on {robot.address} for {opts.seconds:g} s, {priority}", flush=True
+    )
     if log is not None:
         log.write("/robot/hello", {"privileged": robot.privileged, **theirs.to_json()})
     return loop.run(robot, host, policy, opts, log, commands)

@@ -4,6 +4,7 @@ real time behind the TCP link (:mod:`jaxenvs.deploy.simrobot`)."""
 from __future__ import annotations
 
 import argparse
+import sys
 
 from jaxenvs.commands import checks
 
@@ -27,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seconds", type=float, default=0.0, help="end each run after this")
     parser.add_argument("--once", action="store_true", help="exit when the first client leaves")
     parser.add_argument("--seed", type=int, default=0, help="initial states, noise, delays")
+    parser.add_argument(
+        "--realtime", action="store_true", help="run under SCHED_FIFO (Linux, CAP_SYS_NICE)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,4 +53,8 @@ def run(args: argparse.Namespace) -> int:
         once=args.once,
         seed=args.seed,
     )
+    if args.realtime:
+        from jaxenvs.deploy.loop import raise_priority
+
+        print(f"robot: {raise_priority()}", file=sys.stderr, flush=True)
     return simrobot.serve(world, args.listen, opts)

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import sys
 import threading
 import time
@@ -173,6 +174,22 @@ class Record:
     error: str | None = None
 
 
+#: the SCHED_FIFO priority of ``--realtime`` (the middle of Linux's 1..99)
+RT_PRIORITY = 50
+
+
+def raise_priority() -> str:
+    """Run this thread (and the threads it starts) under Linux's real-time ``SCHED_FIFO``
+    scheduler at :data:`RT_PRIORITY`, so that other processes on a busy computer do not
+    delay the control loop; what was done, as a few words ("SCHED_FIFO 50", or why not).
+    The loop sleeps most of each period, so it leaves the CPU to others."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+    except (AttributeError, PermissionError, OSError) as err:
+        return f"normal priority ({type(err).__name__}: needs Linux and CAP_SYS_NICE)"
+    return f"SCHED_FIFO {RT_PRIORITY}"
+
+
 def _sleep_until(t: float) -> None:
     """Sleep to within 0.3 ms of ``t``, then spin (time.sleep alone wakes ~0.1-1 ms late)."""
     while True:
@@ -202,16 +219,16 @@ def _check_frame(link: Any, rec: Record, opts: LoopOptions, now: float) -> Any:
     return frame
 
 
-def _account_truth(link: Any, st: _Step, rec: Record, log: Any) -> None:
+def _account_truth(link: Any, st: _Step, rec: Record, log: Any, in_force: Any) -> None:
     """Reward and termination of every ground-truth state received since the last step
     (with the action then in force), and the task's state of the newest."""
     for truth in link.truths() if hasattr(link, "truths") else []:
         if log is not None:
             log.write("/robot/state", {"seq": truth[0], **truth[1]})
         prev = truth if st.truth is None else st.truth
-        action = st.host.zero_action if st.action is None else st.action
+        action = st.host.zero_action if in_force is None else in_force
         task, reward, term = st.host.of_truth(prev[1], truth[1], action)
-        if st.truth is not None and st.action is not None and not rec.terminated:
+        if st.truth is not None and in_force is not None and not rec.terminated:
             rec.ret = (rec.ret or 0.0) + reward
             rec.terminated = term
         if st.commands is None:
@@ -231,9 +248,6 @@ def _one_step(
     log: Any,
 ) -> None:
     frame = _check_frame(link, rec, opts, time.monotonic())
-    for seq in [s for s in st.pending if s <= frame.acked]:
-        rec.rtts.append(frame.received - st.pending.pop(seq))
-    _account_truth(link, st, rec, log)
     if st.commands is not None:
         value = st.commands.at(tick - t0)
         if value is not None:
@@ -247,7 +261,7 @@ def _one_step(
     command = st.host.actuator_action(action)
     link.send(k, command)
     sent = time.monotonic()
-    st.action, st.pending[k] = action, sent
+    in_force, st.action, st.pending[k] = st.action, action, sent
     late = sent - tick
     if late > opts.max_late_ms / 1e3:
         raise DeployError(f"overrun: step {k}'s command went out {late * 1e3:.1f} ms late")
@@ -256,6 +270,10 @@ def _one_step(
     rec.sends.append(sent)
     rec.lateness.append(late)
     rec.ages.append(sent - frame.received)
+    # after the command is out: round trips, and the ground truth's reward and task state
+    for seq in [s for s in st.pending if s <= frame.acked]:
+        rec.rtts.append(frame.received - st.pending.pop(seq))
+    _account_truth(link, st, rec, log, in_force)
     if log is not None:
         if frame.seq != st.frame_seq:
             log.write(
