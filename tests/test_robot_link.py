@@ -39,8 +39,8 @@ def test_codec_round_trip_byte_by_byte():
     assert all(np.array_equal(out[k], readings[k]) for k in readings)
     seq, action = wire.parse_command(got[1], 2, -1)
     assert seq == 3 and action.tolist() == [0.5, -1.0]
-    state = wire.parse_state(got[2], 2, 2, 1)
-    assert state["qpos"].tolist() == [0.1, 0.2] and state["mocap_pos"].shape == (1, 3)
+    seq, state = wire.parse_state(got[2], 2, 2, 1, -1)
+    assert seq == 7 and state["qpos"].tolist() == [0.1, 0.2] and state["mocap_pos"].shape == (1, 3)
     assert not reader.counts
 
 

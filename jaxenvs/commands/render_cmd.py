@@ -139,7 +139,7 @@ def _render_log(args: argparse.Namespace, camera: str | int | None) -> int:
     if args.env_id not in (None, env_id):
         raise ValueError(f"{args.log} is a run of {env_id}, not {args.env_id}")
     env = jaxenvs.make(env_id, physics="c")
-    robot = env.robot
+    robot = env.robot  # type: ignore[union-attr]
     encoders = {n: robot.joints[robot.sensors[n].joint].qpos for n in robot.encoders}
     qpos, mocap = poses(messages, env.sim.mj_model, encoders)
     with render.Renderer(env, args.width, args.height, camera) as renderer:

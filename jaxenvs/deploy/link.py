@@ -178,10 +178,7 @@ class TcpRobot:
                 if self._dims == (0, 0, 0):
                     return
                 last = -1 if self._truth is None else self._truth[0]
-                seq = msg.get("seq")
-                if isinstance(seq, int) and seq <= last:
-                    raise wire.BadMessage("stale", f"state {seq} after {last}")
-                self._truth = (int(seq), wire.parse_state(msg, *self._dims))  # type: ignore[arg-type]
+                self._truth = wire.parse_state(msg, *self._dims, last)
                 self._new_truths.append(self._truth)
             elif kind == "bye":
                 counts = msg.get("counts")

@@ -27,6 +27,7 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -354,7 +355,7 @@ def run(
     return rec
 
 
-def _pct(values: list[float], q: float) -> float | None:
+def _pct(values: Sequence[float], q: float) -> float | None:
     return float(np.percentile(values, q)) * 1e3 if values else None
 
 

@@ -76,8 +76,16 @@ def build_world(env_id: str, seed: int = 0) -> World:
     for s in spec.sensors:
         sensor = model.sensor(s.name)
         slices[s.name] = (int(sensor.adr[0]), int(sensor.dim[0]))
-    low, high = env.robot.command_range
-    return World(model, spec, env.sim.substeps, starts, slices, np.float64(low), np.float64(high))
+    low, high = env.robot.command_range  # type: ignore[union-attr]
+    return World(
+        model,
+        spec,
+        env.sim.substeps,
+        starts,
+        slices,
+        np.asarray(low, np.float64),
+        np.asarray(high, np.float64),
+    )
 
 
 @dataclass(frozen=True)

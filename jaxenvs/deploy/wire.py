@@ -178,16 +178,20 @@ def state(seq: int, stamp: float, qpos: Any, qvel: Any, mocap_pos: Any) -> dict[
     }
 
 
-def parse_state(obj: Mapping[str, Any], nq: int, nv: int, nmocap: int) -> dict[str, np.ndarray]:
-    """``{"qpos", "qvel", "mocap_pos"}`` of a state message; :class:`BadMessage` otherwise."""
+def parse_state(
+    obj: Mapping[str, Any], nq: int, nv: int, nmocap: int, last_seq: int
+) -> tuple[int, dict[str, np.ndarray]]:
+    """``(seq, {"qpos", "qvel", "mocap_pos"})`` of a state message; :class:`BadMessage`
+    otherwise."""
     mocap = obj.get("mocap_pos")
     if not isinstance(mocap, list) or len(mocap) != nmocap:
         raise BadMessage("wrong_size", f"mocap_pos must hold {nmocap} positions")
-    return {
+    truth = {
         "qpos": _numbers(obj.get("qpos"), nq, "qpos"),
         "qvel": _numbers(obj.get("qvel"), nv, "qvel"),
         "mocap_pos": np.asarray([_numbers(p, 3, "mocap_pos") for p in mocap]).reshape(nmocap, 3),
     }
+    return _seq(obj, last_seq), truth
 
 
 __all__ = [
