@@ -275,3 +275,24 @@ def test_deploy_refuses_a_policy_of_another_task(tmp_path):
     assert done.stderr.strip() == (
         f"jaxenvs deploy: error: {tmp_path / 'pd.npz'} is a policy of CartPole-v0, not Reacher-v0"
     )
+
+
+def test_command_script_holds_each_value_until_the_next(tmp_path):
+    from jaxenvs.deploy.loop import CommandInput
+
+    script = tmp_path / "cmd.txt"
+    script.write_text("# t vx vy\n0 0.1 0.0\n2.5 0.2 -0.1  # faster\n\n")
+    commands = CommandInput(str(script))
+    assert commands.at(1.0).tolist() == pytest.approx([0.1, 0.0])
+    assert commands.at(2.5).tolist() == pytest.approx([0.2, -0.1])
+    commands.expect((2,), "Reacher-v0")
+    with pytest.raises(ValueError, match="the command at 0 s has 2 values, Reacher-v0 takes 3"):
+        commands.expect((3,), "Reacher-v0")
+    with pytest.raises(ValueError, match="CartPole-v0 takes no task input"):
+        commands.expect((), "CartPole-v0")
+    late = CommandInput(str(script))
+    script.write_text("1 0.5\n")
+    assert CommandInput(str(script)).at(0.5) is None and late.at(9).shape == (2,)
+    script.write_text("1 fast\n")
+    with pytest.raises(ValueError, match=r"cmd.txt:1: expected 'T v1 v2 \.\.\.' numbers"):
+        CommandInput(str(script))

@@ -198,7 +198,9 @@ def _drive(
         "qvel": np.zeros(model.nv),
         "mocap_pos": model.body_pos[model.body_mocapid >= 0].copy(),
     }
-    host.warm(spec.sizes(), truth)  # compile before the robot's clock starts
+    task_shape = host.warm(spec.sizes(), truth)  # compile before the robot's clock starts
+    if commands is not None:
+        commands.expect(task_shape, spec.env_id)
     theirs = robot.connect()
     spec.check_matches(theirs)
     if robot.privileged:

@@ -121,12 +121,32 @@ class CommandInput:
         if not self._script:
             raise ValueError(f"{source}: the command script holds no command")
 
+    size: int | None = None  # the task input's size, once :meth:`expect` said it
+
+    def expect(self, shape: tuple[int, ...], env_id: str) -> None:
+        """Check the script's values against the task input's ``shape`` (one line naming
+        the problem); typed lines of another size are ignored with a message."""
+        if len(shape) != 1:
+            raise ValueError(f"{env_id} takes no task input (--command)")
+        self.size = shape[0]
+        for t, value in self._script:
+            if value.shape != shape:
+                raise ValueError(
+                    f"the command at {t:g} s has {value.size} values, {env_id} takes {shape[0]}"
+                )
+
     def _read_stdin(self) -> None:
         for line in sys.stdin:
             try:
                 value = np.asarray([float(f) for f in line.split()], np.float32)
             except ValueError:
                 print(f"ignored command {line.strip()!r}: expected numbers", file=sys.stderr)
+                continue
+            if self.size is not None and value.size != self.size:
+                print(
+                    f"ignored command {line.strip()!r}: expected {self.size} numbers",
+                    file=sys.stderr,
+                )
                 continue
             with self._lock:
                 self._value = value

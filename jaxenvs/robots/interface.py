@@ -252,15 +252,23 @@ class HostTask:
         """An action of the policy's shape and dtype, all zeros."""
         return np.zeros(self.env.action_shape, np.int32 if self.env.discrete else np.float32)
 
-    def warm(self, sizes: Mapping[str, int], truth: Mapping[str, np.ndarray] | None) -> None:
+    def warm(self, sizes: Mapping[str, int], truth: Mapping[str, np.ndarray]) -> tuple[int, ...]:
         """Compile every function once (before a real-time loop) on zero inputs of the
-        readings' ``sizes`` and of the ground truth's shapes (``None``: not used)."""
+        readings' ``sizes`` and of the ground truth's shapes; the shape of the task's own
+        state (``()`` when it has none or several parts)."""
         readings = {name: np.zeros(size) for name, size in sizes.items()}
         self.actuator_action(self.zero_action)
-        if truth is not None:
-            task, _, _ = self.of_truth(truth, truth, self.zero_action)
-            self.observe(readings, task)
+        task, _, _ = self.of_truth(truth, truth, self.zero_action)
+        self.observe(readings, task)
         self.observe(readings, self._extras)
+        import jax
+
+        leaves = jax.tree.leaves(task)
+        if len(leaves) != 1:
+            return ()
+        shape = tuple(np.shape(leaves[0]))
+        self.observe(readings, np.zeros(shape, np.float32))  # a task input (--command)
+        return shape
 
     def _of_truth(self, prev: Any, truth: Any, action: Any) -> Any:
         p, d = types.SimpleNamespace(**prev), types.SimpleNamespace(**truth)
