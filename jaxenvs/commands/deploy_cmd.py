@@ -118,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.robot != "sim":
         simrobot.parse_address(args.robot)
+        if args.latency_ms or args.jitter_ms or args.noise:
+            raise ValueError("--latency-ms, --jitter-ms and --noise set up --robot sim")
     policy = loop.HostPolicy(args.policy)
     if policy.metadata["env_id"] != args.env:
         raise ValueError(

@@ -166,11 +166,13 @@ class CommandInput:
 # ----------------------------------------------------------------------------- the loop
 @dataclasses.dataclass(frozen=True)
 class LoopOptions:
-    """Attributes:
-    seconds: how long to run.
-    sensor_timeout_ms: the longest wait for a fresh sensor frame before stopping.
-    max_late_ms: a command later than this after its tick stops the run (overrun).
-    first_frame_s: how long to wait for the robot's first sensor frame.
+    """How long the loop runs, and when it stops on its own.
+
+    Attributes:
+      seconds: how long to run.
+      sensor_timeout_ms: the longest wait for a fresh sensor frame before stopping.
+      max_late_ms: a command later than this after its tick stops the run (overrun).
+      first_frame_s: how long to wait for the robot's first sensor frame.
     """
 
     seconds: float
