@@ -9,7 +9,8 @@ current state (``mj_forward``), adds Gaussian noise of ``noise`` times
 ``sensors`` message and a privileged ``state`` message (the ground truth, for logging,
 rendering and the task's return; a real robot sends none). It applies the newest valid
 command through the robot's command map; with no valid command for ``watchdog``
-control periods, or after a ``hold``, it holds (zero command). ``latency_ms`` delays each
+control periods, or after a ``hold``, it holds (action 0: zero force for a motor, the
+neutral pose for position servos). ``latency_ms`` delays each
 message in both directions, plus a uniform ``[0, jitter_ms]`` (so messages may arrive
 out of order, as on a real network). Bad messages are counted by reason and never stop it.
 
@@ -164,8 +165,10 @@ class _Episode:
             self.counts[bad.reason] += 1
 
     def hold(self) -> None:
+        """Action 0 on every actuator: zero force for a motor with a centred range, the
+        neutral pose for position servos (the hexapod's standing pose)."""
         self.held = True
-        self.data.ctrl[:] = 0.0
+        self.data.ctrl[:] = self.ctrl_of(np.zeros(len(self.world.spec.actuators)))
 
     def send_now(self, frame: bytes) -> None:
         try:

@@ -18,7 +18,7 @@ state       robot      PRIVILEGED (a simulator only): ``seq`` (the sensors frame
                        ``stamp``, ``qpos``, ``qvel``, ``mocap_pos`` (lists)
 command     loop       ``seq`` (int, increasing), ``action`` (one number in [-1, 1] per
                        actuator, the robot's command map applies)
-hold        loop       ``seq``, ``reason``: safe stop (zero command / hold position)
+hold        loop       ``seq``, ``reason``: safe stop (action 0 / hold position)
 bye         either     ``reason``, and from the robot ``counts`` (bad messages by reason)
 ==========  =========  ==================================================================
 

@@ -212,7 +212,7 @@ class RobotLink(Protocol):
         ...
 
     def hold(self, reason: str) -> None:
-        """Safe stop: hold position / zero command until told otherwise."""
+        """Safe stop: hold position (action 0) until told otherwise."""
         ...
 
     def close(self) -> None:
