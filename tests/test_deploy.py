@@ -296,3 +296,23 @@ def test_command_script_holds_each_value_until_the_next(tmp_path):
     script.write_text("1 fast\n")
     with pytest.raises(ValueError, match=r"cmd.txt:1: expected 'T v1 v2 \.\.\.' numbers"):
         CommandInput(str(script))
+
+
+def test_log_of_a_killed_writer_is_readable_up_to_its_last_chunk(tmp_path):
+    """A writer that never finished (its process killed) leaves every whole chunk readable."""
+    from jaxenvs.deploy.log import CHUNK, LogWriter
+
+    path = tmp_path / "l.mcap"
+    writer = LogWriter(path)
+    writer.write("/robot/hello", {"env_id": "CartPole-v0"})
+    n = 4 * CHUNK // 60
+    for k in range(n):
+        writer.write("/deploy/command", {"step": k, "command": [0.5]})
+    partial = tmp_path / "partial.mcap"
+    partial.write_bytes(path.read_bytes())  # the file as a killed process would leave it
+    writer.close()
+    steps = [m["step"] for m in read_log(partial)["/deploy/command"]]
+    assert len(steps) > n // 2 and steps == list(range(len(steps)))
+    finished = read_log(path)
+    assert [m["step"] for m in finished["/deploy/command"]] == list(range(n))
+    assert finished["/robot/hello"] == [{"env_id": "CartPole-v0"}]

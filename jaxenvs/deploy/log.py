@@ -106,11 +106,15 @@ def read_log(path: str | Path) -> dict[str, list[dict[str, Any]]]:
         raise ValueError(f"no log file at {path}")
     with open(path, "rb") as f:
         try:
-            for _, channel, message in NonSeekingReader(f).iter_messages():
+            # in file order: a log is written in time order, and an unfinished file's
+            # messages are yielded up to its last whole chunk
+            for _, channel, message in NonSeekingReader(f).iter_messages(log_time_order=False):
                 out.setdefault(channel.topic, []).append(json.loads(message.data))
         except (McapError, json.JSONDecodeError, EOFError) as err:
             if not any(out.values()):
-                raise ValueError(f"{path}: not a readable MCAP log ({err})") from None
+                raise ValueError(
+                    f"{path}: not a readable MCAP log ({type(err).__name__} {err})"
+                ) from None
     return out
 
 
