@@ -162,6 +162,10 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
         rec = _drive(robot, spec, host, env, policy, opts, log, commands, args.realtime)
     except LinkError as err:
         rec = loop.Record(dt=env.control_dt, error=str(err))
+    except BaseException:
+        if log is not None:
+            log.close()
+        raise
     finally:
         robot.close()
     s = loop.summary(rec, robot, policy, args.env, args.seconds)
@@ -207,6 +211,11 @@ def _drive(
     spec.check_matches(theirs)
     if robot.privileged:
         robot.set_state_sizes(model.nq, model.nv, model.nmocap)
+    elif host.needs_input and commands is None:
+        raise ValueError(
+            f"{spec.env_id} needs a task input (a target, a command) the robot does not "
+            "send: give --command FILE|-"
+        )
     priority = loop.raise_priority() if realtime else "normal priority"
     print(
         f"running {spec.env_id} on {robot.address} for {opts.seconds:g} s, {priority}", flush=True

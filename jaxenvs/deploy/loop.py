@@ -335,6 +335,19 @@ def _leaves(tree: Any) -> list[Any]:
     return list(jax.tree.leaves(tree))
 
 
+def _first_frame(link: Any, st: _Step, rec: Record, opts: LoopOptions, log: Any) -> None:
+    """Wait for the robot's first sensor frame (and its first ground truth, when it sends
+    one: the task's own state may come from it)."""
+    end = time.monotonic() + opts.first_frame_s
+    truth = getattr(link, "privileged", False)
+    while link.latest() is None or (truth and st.truth is None):
+        if time.monotonic() > end:
+            raise DeployError(f"no sensor message within {opts.first_frame_s:g} s")
+        if truth:
+            _account_truth(link, st, rec, log, None)
+        time.sleep(1e-3)
+
+
 def run(
     link: Any,
     host: Any,
@@ -350,11 +363,7 @@ def run(
     rec = Record(dt=dt)
     st = _Step(host, commands)
     try:
-        end = time.monotonic() + opts.first_frame_s
-        while link.latest() is None:
-            if time.monotonic() > end:
-                raise DeployError(f"no sensor message within {opts.first_frame_s:g} s")
-            time.sleep(1e-3)
+        _first_frame(link, st, rec, opts, log)
         t0 = time.monotonic()
         total = max(1, round(opts.seconds / dt))
         k = 0

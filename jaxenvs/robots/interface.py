@@ -246,6 +246,9 @@ class HostTask:
         self._obs = jax.jit(env.observation)
         self._act = jax.jit(env.actuator_action)
         self._truth_fns = jax.jit(self._of_truth)
+        #: the observation needs a task state that a reset does not give (known after
+        #: :meth:`warm`): the ground truth's, or a task input
+        self.needs_input = False
 
     @property
     def zero_action(self) -> np.ndarray:
@@ -260,7 +263,11 @@ class HostTask:
         self.actuator_action(self.zero_action)
         task, _, _ = self.of_truth(truth, truth, self.zero_action)
         self.observe(readings, task)
-        self.observe(readings, self._extras)
+        try:
+            self.observe(readings, self._extras)
+            self.needs_input = False
+        except (TypeError, ValueError):
+            self.needs_input = True  # the task's state must come from the truth or a command
         import jax
 
         leaves = jax.tree.leaves(task)
