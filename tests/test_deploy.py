@@ -143,6 +143,57 @@ def test_deploy_cartpole_through_the_simulated_robot(tmp_path):
     assert video.stat().st_size > 1000 and f"{len(messages['/robot/state'])} frames" in done.stdout
 
 
+def test_deploy_reacher_takes_its_target_from_the_ground_truth(tmp_path):
+    """Reacher's observation needs the target: the loop waits for the simulated robot's
+    first ground truth and acts on it; the return is the task's (negative distances)."""
+    meta = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "env_id": "Reacher-v0",
+        "observation_size": "10",
+        "action_size": "2",
+        "discrete": "0",
+        "control_dt": "0.02",
+        "activation": "tanh",
+    }
+    kernel = np.zeros((10, 2), np.float32)
+    kernel[8:10] = -np.eye(2, dtype=np.float32)  # push the fingertip toward the target
+    policy = tmp_path / "p.npz"
+    policy.write_bytes(
+        npz_bytes(NumpyPolicy((kernel,), (np.zeros(2, np.float32),), None, False, meta))
+    )
+    summary, log = tmp_path / "s.json", tmp_path / "l.mcap"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "jaxenvs",
+            "deploy",
+            str(policy),
+            "--env",
+            "Reacher-v0",
+            "--robot",
+            "sim",
+            "--seconds",
+            "1",
+            "--summary",
+            str(summary),
+            "--log",
+            str(log),
+        ],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    s = json.loads(summary.read_text())
+    assert s["steps"] == 50 and s["error"] is None and -50 * 0.6 < s["return"] < 0
+    commands = read_log(log)["/deploy/command"]
+    target = read_log(log)["/robot/state"][0]["mocap_pos"][0][:2]
+    assert all(c["task"] == pytest.approx(target) for c in commands)
+
+
 def test_robot_killed_mid_run(tmp_path):
     robot = _jaxenvs("robot", "CartPole-v0", "--listen", "tcp://127.0.0.1:0", "--once")
     assert robot.stdout is not None

@@ -221,3 +221,21 @@ def test_parse_address():
     for bad in ("127.0.0.1:5", "udp://h:1", "tcp://h:", "tcp://h:99999"):
         with pytest.raises(ValueError, match="bad address"):
             simrobot.parse_address(bad)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "needs", "shape"), [("CartPole-v0", False, ()), ("Reacher-v0", True, (2,))]
+)
+def test_host_task_says_whether_the_observation_needs_a_task_input(env_id, needs, shape):
+    """Reacher's observation needs its target (the ground truth's, or --command); CartPole's
+    nothing beyond the readings."""
+    env = jaxenvs.make(env_id, physics="c")
+    host = HostTask(env)
+    model = env.sim.physics_mj_model
+    truth = {
+        "qpos": model.qpos0.copy(),
+        "qvel": np.zeros(model.nv),
+        "mocap_pos": np.zeros((model.nmocap, 3)),
+    }
+    assert host.warm(spec_of(env, env_id).sizes(), truth) == shape
+    assert host.needs_input is needs
