@@ -239,3 +239,26 @@ def test_host_task_says_whether_the_observation_needs_a_task_input(env_id, needs
     }
     assert host.warm(spec_of(env, env_id).sizes(), truth) == shape
     assert host.needs_input is needs
+
+
+def test_spec_command_ends_give_the_robots_command_map(world):
+    """The spec's low/high (the robot's command map at -1, +1) and the simulated robot's
+    linear map between them give the robot's own ``command`` of any action."""
+    from jaxenvs.robots.cartpole import Cartpole
+
+    actions = np.random.default_rng(0).uniform(-1, 1, (5, 18)).astype(np.float32)
+
+    class Task:
+        control_dt = 0.05
+
+    for robot in (Hexapod(), Cartpole()):
+        task = Task()
+        task.robot = robot  # type: ignore[attr-defined]
+        spec = spec_of(task, "X")
+        low = np.array([a.low for a in spec.actuators])
+        high = np.array([a.high for a in spec.actuators])
+        for a in actions[:, : len(low)]:
+            linear = (low + high) / 2 + a * (high - low) / 2
+            np.testing.assert_allclose(linear, np.asarray(robot.command(a)), atol=1e-6)
+    ep = simrobot._Episode(world, world.starts[0], None)
+    np.testing.assert_allclose(ep.ctrl_of(np.array([0.3])), [0.3], atol=1e-12)

@@ -77,16 +77,9 @@ def build_world(env_id: str, seed: int = 0) -> World:
     for s in spec.sensors:
         sensor = model.sensor(s.name)
         slices[s.name] = (int(sensor.adr[0]), int(sensor.dim[0]))
-    low, high = env.robot.command_range  # type: ignore[union-attr]
-    return World(
-        model,
-        spec,
-        env.sim.substeps,
-        starts,
-        slices,
-        np.asarray(low, np.float64),
-        np.asarray(high, np.float64),
-    )
+    low = np.asarray([a.low for a in spec.actuators], np.float64)
+    high = np.asarray([a.high for a in spec.actuators], np.float64)
+    return World(model, spec, env.sim.substeps, starts, slices, low, high)
 
 
 @dataclass(frozen=True)

@@ -56,7 +56,8 @@ class SensorSpec:
 
 @dataclasses.dataclass(frozen=True)
 class ActuatorSpec:
-    """One actuator: ``low``/``high`` is the ``ctrl`` (its MJCF control) of actions -1, +1."""
+    """One actuator: ``low``/``high`` is the ``ctrl`` (its MJCF control) of actions -1, +1;
+    the command map is linear between them."""
 
     name: str
     low: float
@@ -144,6 +145,15 @@ def _unit(robot: Any, sensor: Any) -> str:
     return UNITS.get(sensor.kind, "")
 
 
+def command_ends(robot: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The ``ctrl`` of actions -1 and +1 on every actuator through the robot's own command
+    map (:meth:`~jaxenvs.robots.base.Robot.command`, linear in the action), float64."""
+    n = len(robot.actuators)
+    low = np.asarray(robot.command(np.full(n, -1.0, np.float32)), np.float64)
+    high = np.asarray(robot.command(np.full(n, 1.0, np.float32)), np.float64)
+    return low, high
+
+
 def spec_of(env: Any, env_id: str) -> RobotSpec:
     """The :class:`RobotSpec` of the task ``env`` (registered as ``env_id``) over a robot
     (its ``env.robot``): the robot's observable sensors, its actuators and command range,
@@ -151,7 +161,7 @@ def spec_of(env: Any, env_id: str) -> RobotSpec:
     robot = getattr(env, "robot", None)
     if robot is None:
         raise ValueError(f"{env_id} is not a task over a robot (it has no robot declaration)")
-    low, high = robot.command_range
+    low, high = command_ends(robot)
     return RobotSpec(
         robot=robot.xml.stem,
         env_id=env_id,
