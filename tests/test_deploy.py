@@ -344,6 +344,8 @@ def test_command_script_holds_each_value_until_the_next(tmp_path):
     late = CommandInput(str(script))
     script.write_text("1 0.5\n")
     assert CommandInput(str(script)).at(0.5) is None and late.at(9).shape == (2,)
+    with pytest.raises(ValueError, match="must start at 0 s, not 1"):
+        CommandInput(str(script)).expect((1,), "Reacher-v0")
     script.write_text("1 fast\n")
     with pytest.raises(ValueError, match=r"cmd.txt:1: expected 'T v1 v2 \.\.\.' numbers"):
         CommandInput(str(script))

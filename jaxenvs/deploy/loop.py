@@ -129,6 +129,8 @@ class CommandInput:
         if len(shape) != 1:
             raise ValueError(f"{env_id} takes no task input (--command)")
         self.size = shape[0]
+        if self._script and self._script[0][0] > 0:
+            raise ValueError(f"the command script must start at 0 s, not {self._script[0][0]:g}")
         for t, value in self._script:
             if value.shape != shape:
                 raise ValueError(
@@ -235,7 +237,7 @@ class _Step:
         self.pending: dict[int, float] = {}
 
 
-def _check_frame(link: Any, rec: Record, opts: LoopOptions, now: float) -> Any:
+def _check_frame(link: Any, opts: LoopOptions, now: float) -> Any:
     frame = link.latest()
     if frame is None or now - frame.received > opts.sensor_timeout_ms / 1e3:
         raise DeployError(f"no sensor message for {opts.sensor_timeout_ms:g} ms")
@@ -270,7 +272,7 @@ def _one_step(
     opts: LoopOptions,
     log: Any,
 ) -> None:
-    frame = _check_frame(link, rec, opts, time.monotonic())
+    frame = _check_frame(link, opts, time.monotonic())
     if st.commands is not None:
         value = st.commands.at(tick - t0)
         if value is not None:
@@ -336,8 +338,13 @@ def _leaves(tree: Any) -> list[Any]:
 
 
 def _first_frame(link: Any, st: _Step, rec: Record, opts: LoopOptions, log: Any) -> None:
-    """Wait for the robot's first sensor frame (and its first ground truth, when it sends
-    one: the task's own state may come from it)."""
+    """Wait for the first typed task input when the observation needs one, then for the
+    robot's first sensor frame (and its first ground truth, when it sends one: the task's
+    own state may come from it)."""
+    if st.commands is not None and st.host.needs_input and st.commands.at(0.0) is None:
+        print("type the task input (v1 v2 ...) to start", file=sys.stderr, flush=True)
+        while st.commands.at(0.0) is None:
+            time.sleep(0.01)
     end = time.monotonic() + opts.first_frame_s
     truth = getattr(link, "privileged", False)
     while link.latest() is None or (truth and st.truth is None):
