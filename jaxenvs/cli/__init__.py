@@ -1,4 +1,5 @@
-"""The ``jaxenvs`` command line: list, train, eval, compare, render, bench, view, export.
+"""The ``jaxenvs`` command line: list, train, eval, compare, render, bench, view, export,
+robot, deploy.
 
 Each subcommand lives in its own module under ``jaxenvs.cli`` exposing
 ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``. Errors the user
@@ -13,7 +14,18 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-COMMANDS = ("list", "train", "eval", "compare", "render", "bench", "view", "export")
+COMMANDS = (
+    "list",
+    "train",
+    "eval",
+    "compare",
+    "render",
+    "bench",
+    "view",
+    "export",
+    "robot",
+    "deploy",
+)
 
 
 def _module(name: str):  # type: ignore[no-untyped-def]
@@ -28,26 +40,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        try:
-            mod = _module(name)
-        except ModuleNotFoundError as err:
-            if err.name != f"jaxenvs.cli.{name}_cmd":
-                raise
-            p = sub.add_parser(name, help="(not available in this version)")
-            p.set_defaults(_run=_unavailable(name))
-            continue
+        mod = _module(name)
         p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
-
-
-def _unavailable(name: str):  # type: ignore[no-untyped-def]
-    def run(args: argparse.Namespace) -> int:
-        print(f"jaxenvs {name}: not available in this version", file=sys.stderr)
-        return 2
-
-    return run
 
 
 def _use_cores(args: argparse.Namespace) -> None:

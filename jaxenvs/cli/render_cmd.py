@@ -4,7 +4,9 @@
 batched (auto-resetting) env in a single jitted scan, then renders that trajectory
 headlessly with :mod:`jaxenvs.render` and writes the video atomically. ``--policy RUN_DIR``
 acts with the greedy policy of a run written by ``jaxenvs train`` (through
-``jaxenvs.run.runner.load_policy``) on the run's own env config.
+``jaxenvs.run.runner.load_policy``) on the run's own env config. ``--log FILE`` renders
+the run a ``jaxenvs deploy --log`` recorded instead (its poses from the robot's ground
+truth, or from its joint encoders' readings; :mod:`jaxenvs.deploy.log`).
 """
 
 from __future__ import annotations
@@ -19,9 +21,12 @@ HELP = "render a video of an env with random actions or a trained policy (--poli
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("env_id", metavar="ID", help="registered env id (see `jaxenvs list`)")
+    parser.add_argument(
+        "env_id", metavar="ID", nargs="?", help="registered env id (see `jaxenvs list`)"
+    )
     parser.add_argument("--out", required=True, help="output video (.mp4 or .gif)")
     parser.add_argument("--policy", metavar="RUN_DIR", help="act with this training run")
+    parser.add_argument("--log", metavar="FILE", help="render a jaxenvs deploy log (MCAP)")
     parser.add_argument("--steps", type=int, default=300, help="control steps (default 300)")
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     parser.add_argument("--width", type=int, default=640, help="frame width (default 640)")
@@ -106,6 +111,10 @@ def run(args: argparse.Namespace) -> int:
     render.check_video_path(args.out)
     _check_even_size(args)
     camera = int(args.camera) if args.camera is not None and args.camera.isdigit() else args.camera
+    if args.log:
+        return _render_log(args, camera)
+    if args.env_id is None:
+        raise ValueError("give an env ID (or --log FILE)")
     physics = {} if args.physics is None else {"physics": args.physics}
     env = jaxenvs.make(args.env_id, **physics)
     if args.policy:
@@ -121,4 +130,35 @@ def run(args: argparse.Namespace) -> int:
     fps = args.fps if args.fps is not None else 1.0 / env.control_dt
     path = render.write_video(frames, args.out, fps=fps)
     print(f"wrote {path} ({len(frames)} frames, {fps:g} fps)")
+    return 0
+
+
+def _render_log(args: argparse.Namespace, camera: str | int | None) -> int:
+    """The video of a deploy log: one frame per logged pose, at the control rate."""
+    import numpy as np
+
+    import jaxenvs
+    from jaxenvs import render
+    from jaxenvs.deploy.log import poses, read_log
+
+    if args.policy:
+        raise ValueError("--log renders a recorded run: give no --policy")
+    messages = read_log(args.log)
+    hello = messages["/robot/hello"]
+    if not hello:
+        raise ValueError(f"{args.log}: no /robot/hello message (not a jaxenvs deploy log)")
+    env_id = hello[0]["env_id"]
+    if args.env_id not in (None, env_id):
+        raise ValueError(f"{args.log} is a run of {env_id}, not {args.env_id}")
+    env = jaxenvs.make(env_id, physics="c")
+    robot = env.robot  # type: ignore[union-attr]
+    encoders = {n: robot.joints[robot.sensors[n].joint].qpos for n in robot.encoders}
+    qpos, mocap = poses(messages, env.sim.mj_model, encoders)
+    with render.Renderer(env, args.width, args.height, camera) as renderer:
+        frames = np.stack(
+            [renderer.frame(q, None if mocap is None else mocap[t]) for t, q in enumerate(qpos)]
+        )
+    fps = args.fps if args.fps is not None else 1.0 / env.control_dt
+    path = render.write_video(frames, args.out, fps=fps)
+    print(f"wrote {path} ({len(frames)} frames of {args.log}, {fps:g} fps)")
     return 0

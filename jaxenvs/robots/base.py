@@ -401,6 +401,11 @@ class RobotTask:
         del data
         return extras
 
+    def actuator_action(self, action: jax.Array) -> jax.Array:
+        """The policy's ``action`` as an action in [-1, 1] per actuator (what the robot's
+        command map takes); the action itself unless the task says otherwise."""
+        return jnp.asarray(action, jnp.float32)
+
     def _observe(self, key: jax.Array, data: Any, extras: Any, params: Any) -> jax.Array:
         del key, params
         return self.observation(self.robot.sense(data), self.task_state(data, extras))

@@ -138,8 +138,12 @@ class CartPole(_CartpoleTask, Env[CartPoleConfig]):
         action: jax.Array,
         params: CartpoleParams,
     ) -> tuple[mjx.Data, NoExtras]:
-        ctrl = self.robot.command(jnp.where(action == 1, 1.0, -1.0)[None])
+        ctrl = self.robot.command(self.actuator_action(action))
         return self.sim.step(self.sim.model_with(params.model), data, ctrl), extras
+
+    def actuator_action(self, action: jax.Array) -> jax.Array:
+        """Action 1 pushes right (+1), any other left (-1)."""
+        return jnp.where(action == 1, 1.0, -1.0)[None]
 
     def observation(self, readings: Readings, task: NoExtras) -> jax.Array:
         """Cart position, cart velocity, pole angle, pole angular velocity."""

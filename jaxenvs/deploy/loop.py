@@ -1,0 +1,452 @@
+"""The real-time deploy loop: an exported policy driving a robot at the task's control rate.
+
+Every control period ``dt`` (``env.control_dt``), at tick ``t0 + k dt``, the loop takes
+the newest sensor frame, computes the observation with the task's own function
+(:class:`~jaxenvs.robots.interface.HostTask`), runs the policy, and sends the command.
+
+* **Deadline miss**: the command of a tick went out more than half a period after the
+  tick. Ticks the loop slept through entirely are skipped and counted as misses too.
+* **Safety**: the loop stops, commands a hold and raises :class:`DeployError` (one line
+  naming the cause) when the link fails or the robot sends something malformed
+  (:class:`~jaxenvs.robots.interface.LinkError`), no sensor frame arrives for
+  ``sensor_timeout_ms``, the policy's output or the observation is not finite, or a
+  command goes out more than ``max_late_ms`` after its tick (an overrun). The log is
+  finished on every exit.
+* **Ground truth**: a simulated robot's privileged state gives the task's state (e.g.
+  Reacher's target), reward and termination through the task's own functions: the summary's
+  ``return`` and ``terminated``. A robot without it reports ``return: null``; a task
+  input (the target, a joystick command) then comes from :class:`CommandInput`. The loop
+  ends at termination (the episode is over), holding.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxenvs.robots.interface import LinkError
+
+
+class DeployError(RuntimeError):
+    """The run stopped on a failure; the message is one line naming the cause."""
+
+
+# ---------------------------------------------------------------------------- the policy
+class HostPolicy:
+    """An exported policy (``.onnx`` through onnxruntime, or ``.npz`` through the numpy
+    runtime): ``act(obs) -> (action, finite)`` where ``finite`` says the network's output
+    (the logits of a discrete policy from an ``.npz``) was finite."""
+
+    def __init__(self, path: str | Path) -> None:
+        path = Path(path)
+        self.path = path
+        if path.suffix == ".onnx":
+            try:
+                import onnxruntime
+            except ImportError:
+                raise ValueError(
+                    "an .onnx policy needs onnxruntime: pip install 'jaxenvs[export]'"
+                ) from None
+            if not path.is_file():
+                raise ValueError(f"no policy file at {path}")
+            options = onnxruntime.SessionOptions()
+            options.intra_op_num_threads = options.inter_op_num_threads = 1
+            self._session = onnxruntime.InferenceSession(
+                str(path), options, providers=["CPUExecutionProvider"]
+            )
+            self.metadata = dict(self._session.get_modelmeta().custom_metadata_map)
+            self._npz = None
+        elif path.suffix == ".npz":
+            from jaxenvs.deploy.runtime import NumpyPolicy
+
+            self._npz = NumpyPolicy.load(path)
+            self.metadata = dict(self._npz.metadata)
+        else:
+            raise ValueError(f"{path}: a policy is an exported .onnx or .npz file")
+        if "env_id" not in self.metadata or "control_dt" not in self.metadata:
+            raise ValueError(f"{path}: not an exported jaxenvs policy (no env_id/control_dt)")
+        self.discrete = self.metadata.get("discrete") == "1"
+        self.format = path.suffix[1:]
+
+    def act(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
+        """The greedy action of one observation, and whether the output was finite."""
+        x = np.asarray(obs, np.float32)[None]
+        if self._npz is not None:
+            out = self._npz.logits(x)[0]
+            finite = bool(np.all(np.isfinite(out)))
+            if self.discrete:
+                return np.asarray(np.argmax(out), np.int64), finite
+            return np.clip(out, -1.0, 1.0).astype(np.float32), finite
+        action = self._session.run(["action"], {"obs": x})[0][0]
+        return action, bool(np.all(np.isfinite(action)))
+
+
+# ------------------------------------------------------------------------ the task input
+class CommandInput:
+    """The task's own input (a target, a joystick command) from a script or the keyboard.
+
+    A script file holds lines ``T v1 v2 ...``: from ``T`` seconds after the start the
+    input is ``(v1, v2, ...)`` (``#`` starts a comment). ``-`` reads lines ``v1 v2 ...``
+    from standard input as they are typed; each holds until the next.
+    """
+
+    def __init__(self, source: str) -> None:
+        self._lock = threading.Lock()
+        self._value: np.ndarray | None = None
+        self._script: list[tuple[float, np.ndarray]] = []
+        if source == "-":
+            threading.Thread(target=self._read_stdin, daemon=True).start()
+            return
+        try:
+            lines = Path(source).read_text().splitlines()
+        except OSError as err:
+            raise ValueError(f"cannot read the command script {source}: {err.strerror}") from None
+        for n, line in enumerate(lines, 1):
+            fields = line.split("#")[0].split()
+            if fields:
+                try:
+                    t, *values = (float(f) for f in fields)
+                except ValueError:
+                    raise ValueError(f"{source}:{n}: expected 'T v1 v2 ...' numbers") from None
+                self._script.append((t, np.asarray(values, np.float32)))
+        if not self._script:
+            raise ValueError(f"{source}: the command script holds no command")
+
+    size: int | None = None  # the task input's size, once :meth:`expect` said it
+
+    def expect(self, shape: tuple[int, ...], env_id: str) -> None:
+        """Check the script's values against the task input's ``shape`` (one line naming
+        the problem); typed lines of another size are ignored with a message."""
+        if len(shape) != 1:
+            raise ValueError(f"{env_id} takes no task input (--command)")
+        self.size = shape[0]
+        if self._script and self._script[0][0] > 0:
+            raise ValueError(f"the command script must start at 0 s, not {self._script[0][0]:g}")
+        for t, value in self._script:
+            if value.shape != shape:
+                raise ValueError(
+                    f"the command at {t:g} s has {value.size} values, {env_id} takes {shape[0]}"
+                )
+
+    def _read_stdin(self) -> None:
+        for line in sys.stdin:
+            try:
+                value = np.asarray([float(f) for f in line.split()], np.float32)
+            except ValueError:
+                print(f"ignored command {line.strip()!r}: expected numbers", file=sys.stderr)
+                continue
+            if self.size is not None and value.size != self.size:
+                print(
+                    f"ignored command {line.strip()!r}: expected {self.size} numbers",
+                    file=sys.stderr,
+                )
+                continue
+            with self._lock:
+                self._value = value
+
+    def at(self, t: float) -> np.ndarray | None:
+        """The input ``t`` seconds after the start (``None`` before the first)."""
+        if not self._script:
+            with self._lock:
+                return self._value
+        current = None
+        for start, value in self._script:
+            if start <= t:
+                current = value
+        return current
+
+
+# ----------------------------------------------------------------------------- the loop
+@dataclasses.dataclass(frozen=True)
+class LoopOptions:
+    """How long the loop runs, and when it stops on its own.
+
+    Attributes:
+      seconds: how long to run.
+      sensor_timeout_ms: the longest wait for a fresh sensor frame before stopping.
+      max_late_ms: a command later than this after its tick stops the run (overrun).
+      first_frame_s: how long to wait for the robot's first sensor frame.
+    """
+
+    seconds: float
+    sensor_timeout_ms: float = 250.0
+    max_late_ms: float = 100.0
+    first_frame_s: float = 5.0
+
+
+@dataclasses.dataclass
+class Record:
+    """What the loop measured (the summary's numbers)."""
+
+    dt: float
+    steps: int = 0
+    misses: int = 0
+    terminated: bool = False
+    ret: float | None = None
+    sends: list[float] = dataclasses.field(default_factory=list)
+    lateness: list[float] = dataclasses.field(default_factory=list)
+    ages: list[float] = dataclasses.field(default_factory=list)
+    rtts: list[float] = dataclasses.field(default_factory=list)
+    error: str | None = None
+
+
+#: the SCHED_FIFO priority of ``--realtime`` (the middle of Linux's 1..99)
+RT_PRIORITY = 50
+
+
+def raise_priority() -> str:
+    """Run this thread (and the threads it starts) under Linux's real-time ``SCHED_FIFO``
+    scheduler at :data:`RT_PRIORITY`, so that other processes on a busy computer do not
+    delay the control loop; what was done, as a few words ("SCHED_FIFO 50", or why not).
+    The loop sleeps most of each period, so it leaves the CPU to others."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(RT_PRIORITY))
+    except (AttributeError, PermissionError, OSError) as err:
+        return f"normal priority ({type(err).__name__}: needs Linux and CAP_SYS_NICE)"
+    return f"SCHED_FIFO {RT_PRIORITY}"
+
+
+def _sleep_until(t: float) -> None:
+    """Sleep to within 0.3 ms of ``t``, then spin (time.sleep alone wakes ~0.1-1 ms late)."""
+    while True:
+        left = t - time.monotonic()
+        if left <= 0:
+            return
+        if left > 3e-4:
+            time.sleep(left - 3e-4)
+
+
+class _Step:
+    """The loop's state between ticks: last frame, truth, action, sends pending an ack."""
+
+    def __init__(self, host: Any, commands: CommandInput | None) -> None:
+        self.host, self.commands = host, commands
+        self.frame_seq = -1
+        self.truth: tuple[int, dict[str, np.ndarray]] | None = None
+        self.action: np.ndarray | None = None
+        self.task: Any = host.default_task_state
+        self.pending: dict[int, float] = {}
+
+
+def _check_frame(link: Any, opts: LoopOptions, now: float) -> Any:
+    frame = link.latest()
+    if frame is None or now - frame.received > opts.sensor_timeout_ms / 1e3:
+        raise DeployError(f"no sensor message for {opts.sensor_timeout_ms:g} ms")
+    return frame
+
+
+def _account_truth(link: Any, st: _Step, rec: Record, log: Any, in_force: Any) -> None:
+    """Reward and termination of every ground-truth state received since the last step
+    (with the action then in force), and the task's state of the newest."""
+    for truth in link.truths() if hasattr(link, "truths") else []:
+        if log is not None:
+            log.write("/robot/state", {"seq": truth[0], **truth[1]})
+        prev = truth if st.truth is None else st.truth
+        action = st.host.zero_action if in_force is None else in_force
+        task, reward, term = st.host.of_truth(prev[1], truth[1], action)
+        if st.truth is not None and in_force is not None and not rec.terminated:
+            rec.ret = (rec.ret or 0.0) + reward
+            rec.terminated = term
+        if st.commands is None:
+            st.task = task
+        st.truth = truth
+
+
+def _one_step(
+    link: Any,
+    policy: HostPolicy,
+    st: _Step,
+    rec: Record,
+    k: int,
+    t0: float,
+    tick: float,
+    opts: LoopOptions,
+    log: Any,
+) -> None:
+    frame = _check_frame(link, opts, time.monotonic())
+    if st.commands is not None:
+        value = st.commands.at(tick - t0)
+        if value is not None:
+            st.task = value
+    obs = st.host.observe(frame.readings, st.task)
+    if not np.all(np.isfinite(obs)):
+        raise DeployError("the observation is not finite")
+    action, finite = policy.act(obs)
+    if not finite:
+        raise DeployError("the policy's output is not finite")
+    command = st.host.actuator_action(action)
+    link.send(k, command)
+    sent = time.monotonic()
+    in_force, st.action, st.pending[k] = st.action, action, sent
+    late = sent - tick
+    if late > opts.max_late_ms / 1e3:
+        raise DeployError(f"overrun: step {k}'s command went out {late * 1e3:.1f} ms late")
+    rec.steps += 1
+    rec.misses += late > rec.dt / 2
+    rec.sends.append(sent)
+    rec.lateness.append(late)
+    rec.ages.append(sent - frame.received)
+    # after the command is out: round trips, and the ground truth's reward and task state
+    for seq in [s for s in st.pending if s <= frame.acked]:
+        rec.rtts.append(frame.received - st.pending.pop(seq))
+    _account_truth(link, st, rec, log, in_force)
+    if log is not None:
+        if frame.seq != st.frame_seq:
+            log.write(
+                "/robot/sensors",
+                {
+                    "seq": frame.seq,
+                    "stamp": frame.stamp,
+                    "acked": frame.acked,
+                    "readings": frame.readings,
+                },
+            )
+        log.write(
+            "/deploy/command",
+            {
+                "step": k,
+                "seq": k,
+                "tick": tick - t0,
+                "sent": sent - t0,
+                "obs": obs,
+                "action": action,
+                "command": command,
+                "task": _task_json(st.task),
+            },
+        )
+    st.frame_seq = frame.seq
+
+
+def _task_json(task: Any) -> Any:
+    leaves = [np.asarray(x).tolist() for x in _leaves(task)]
+    return leaves[0] if len(leaves) == 1 else leaves
+
+
+def _leaves(tree: Any) -> list[Any]:
+    import jax
+
+    return list(jax.tree.leaves(tree))
+
+
+def _first_frame(link: Any, st: _Step, rec: Record, opts: LoopOptions, log: Any) -> None:
+    """Wait for the first typed task input when the observation needs one, then for the
+    robot's first sensor frame (and its first ground truth, when it sends one: the task's
+    own state may come from it)."""
+    if st.commands is not None and st.host.needs_input and st.commands.at(0.0) is None:
+        print("type the task input (v1 v2 ...) to start", file=sys.stderr, flush=True)
+        while st.commands.at(0.0) is None:
+            time.sleep(0.01)
+    end = time.monotonic() + opts.first_frame_s
+    truth = getattr(link, "privileged", False)
+    while link.latest() is None or (truth and st.truth is None):
+        if time.monotonic() > end:
+            raise DeployError(f"no sensor message within {opts.first_frame_s:g} s")
+        if truth:
+            _account_truth(link, st, rec, log, None)
+        time.sleep(1e-3)
+
+
+def run(
+    link: Any,
+    host: Any,
+    policy: HostPolicy,
+    opts: LoopOptions,
+    log: Any = None,
+    commands: CommandInput | None = None,
+) -> Record:
+    """Drive ``link`` (connected) for ``opts.seconds``; a :class:`Record` of the run.
+    Always holds the robot at the end; on a failure ``record.error`` names it (and the
+    robot was told to hold)."""
+    dt = float(host.env.control_dt)
+    rec = Record(dt=dt)
+    st = _Step(host, commands)
+    try:
+        _first_frame(link, st, rec, opts, log)
+        t0 = time.monotonic()
+        total = max(1, round(opts.seconds / dt))
+        k = 0
+        while k < total and not rec.terminated:
+            tick = t0 + k * dt
+            _sleep_until(tick)
+            _one_step(link, policy, st, rec, k, t0, tick, opts, log)
+            behind = int((time.monotonic() - t0) / dt) - k  # ticks slept through
+            k += max(1, behind)
+            rec.misses += max(0, behind - 1)
+    except (DeployError, LinkError) as err:
+        rec.error = str(err)
+    except KeyboardInterrupt:
+        rec.error = "interrupted"
+    finally:
+        reason = rec.error or ("terminated" if rec.terminated else "done")
+        link.hold(reason)
+        if log is not None:
+            log.write("/deploy/event", {"event": "hold", "reason": reason})
+    return rec
+
+
+def _pct(values: Sequence[float], q: float) -> float | None:
+    return float(np.percentile(values, q)) * 1e3 if values else None
+
+
+def summary(rec: Record, link: Any, policy: HostPolicy, env_id: str, seconds: float) -> dict:
+    """The run's JSON summary (``docs/deploy.md`` lists the fields)."""
+    periods = list(np.diff(rec.sends)) if len(rec.sends) > 1 else []
+    return {
+        "env_id": env_id,
+        "policy": str(policy.path),
+        "policy_format": policy.format,
+        "seconds": seconds,
+        "steps": rec.steps,
+        "terminated": rec.terminated,
+        "return": rec.ret,
+        "target_period_ms": rec.dt * 1e3,
+        "period_ms_mean": float(np.mean(periods)) * 1e3 if periods else None,
+        "period_ms_p99": _pct(periods, 99),
+        "period_ms_max": _pct(periods, 100),
+        "deadline_misses": rec.misses,
+        "late_ms_p50": _pct(rec.lateness, 50),
+        "late_ms_p99": _pct(rec.lateness, 99),
+        "sensor_age_ms_mean": float(np.mean(rec.ages)) * 1e3 if rec.ages else None,
+        "round_trip_ms_p50": _pct(rec.rtts, 50),
+        "round_trip_ms_p99": _pct(rec.rtts, 99),
+        "bad_messages": dict(getattr(link, "counts", {})),
+        "robot_bad_messages": dict(getattr(link, "robot_counts", {})),
+        "error": rec.error,
+    }
+
+
+def one_line(s: dict) -> str:
+    """The summary as one line."""
+
+    def f(x: Any, fmt: str = ".2f") -> str:
+        return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, fmt)
+
+    ret = f(s["return"], ".1f")
+    return (
+        f"{s['env_id']}: {s['steps']} steps, return {ret}, "
+        f"{'terminated' if s['terminated'] else 'not terminated'}, period "
+        f"{f(s['period_ms_mean'])} ms mean / {f(s['period_ms_p99'])} ms p99 "
+        f"(target {s['target_period_ms']:.2f}), {s['deadline_misses']} deadline misses, "
+        f"round trip {f(s['round_trip_ms_p50'])} ms p50"
+    )
+
+
+__all__ = [
+    "CommandInput",
+    "DeployError",
+    "HostPolicy",
+    "LoopOptions",
+    "Record",
+    "one_line",
+    "run",
+    "summary",
+]
