@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from . import (
     auto,
+    deploy,
     engines,
     export,
     facade,
@@ -33,6 +34,7 @@ FAMILIES = (
     throughput,
     soak,
     export,
+    deploy,
 )
 
 
