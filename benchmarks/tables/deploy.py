@@ -40,7 +40,42 @@ def deploy_loop(recs: list[Rec]) -> Cells:
     return each_row(head, rows, cells)
 
 
+def deploy_joystick(recs: list[Rec]) -> Cells:
+    """HexapodJoystick-v0 through the link, one line per link setting (median of its runs)."""
+
+    def cells(r: Row) -> list[str]:
+        link = (
+            "ideal (no delay, no noise)"
+            if not (r["latency_ms"] or r["jitter_ms"] or r["noise"])
+            else f"{r['latency_ms']:g} + [0, {r['jitter_ms']:g}] ms, noise {r['noise']:g}"
+        )
+        return [
+            link,
+            f"{r['median_of']}",
+            f"{r['lin_rms']:.3f}",
+            f"{r['yaw_rms']:.3f}",
+            f"{r['falls']}",
+            f"{r['period_ms_p99']:.1f}",
+            f"{r['round_trip_ms_p50']:.0f}",
+            met(bool(r["all_pass"])),
+        ]
+
+    head = [
+        "link: latency + jitter, sensor noise",
+        "runs (median)",
+        "lin error RMS (m/s)",
+        "yaw error RMS (rad/s)",
+        "falls",
+        "period p99 (ms)",
+        "round trip p50 (ms)",
+        "within 1.5x the simulation's errors, no fall",
+    ]
+    rows = [r for rec in recs for r in rec["rows"] if "median_of" in r]
+    return each_row(head, rows, cells)
+
+
 TABLES = {
+    "deploy-joystick": Table(("deploy_cpu2_joystick",), deploy_joystick),
     "deploy-loop": Table(
         (
             "deploy_cpu2_cartpole",

@@ -196,6 +196,7 @@ class Record:
     lateness: list[float] = dataclasses.field(default_factory=list)
     ages: list[float] = dataclasses.field(default_factory=list)
     rtts: list[float] = dataclasses.field(default_factory=list)
+    tracking: dict[str, list[float]] = dataclasses.field(default_factory=dict)
     error: str | None = None
 
 
@@ -253,11 +254,15 @@ def _account_truth(link: Any, st: _Step, rec: Record, log: Any, in_force: Any) -
         prev = truth if st.truth is None else st.truth
         action = st.host.zero_action if in_force is None else in_force
         task, reward, term = st.host.of_truth(prev[1], truth[1], action)
-        if st.truth is not None and in_force is not None and not rec.terminated:
-            rec.ret = (rec.ret or 0.0) + reward
-            rec.terminated = term
         if st.commands is None:
             st.task = task
+        if st.truth is not None and in_force is not None and not rec.terminated:
+            if not math.isnan(reward):
+                rec.ret = (rec.ret or 0.0) + reward
+            rec.terminated = term
+            if truth[0] == prev[0] + 1:  # one control period apart
+                for name, err in st.host.tracking(prev[1], truth[1], st.task).items():
+                    rec.tracking.setdefault(name, []).append(err)
         st.truth = truth
 
 
@@ -276,8 +281,9 @@ def _one_step(
     if st.commands is not None:
         value = st.commands.at(tick - t0)
         if value is not None:
-            st.task = value
-    obs = st.host.observe(frame.readings, st.task)
+            st.task = st.host.with_input(st.task, value)
+    last = st.host.zero_action if st.action is None else st.action
+    obs = st.host.observe(frame.readings, st.host.with_last_action(st.task, last))
     if not np.all(np.isfinite(obs)):
         raise DeployError("the observation is not finite")
     action, finite = policy.act(obs)
@@ -418,6 +424,12 @@ def summary(rec: Record, link: Any, policy: HostPolicy, env_id: str, seconds: fl
         "sensor_age_ms_mean": float(np.mean(rec.ages)) * 1e3 if rec.ages else None,
         "round_trip_ms_p50": _pct(rec.rtts, 50),
         "round_trip_ms_p99": _pct(rec.rtts, 99),
+        "tracking_error_rms": (
+            {k: float(np.sqrt(np.mean(np.square(v)))) for k, v in rec.tracking.items()}
+            if rec.tracking
+            else None
+        ),
+        "tracking_steps": max((len(v) for v in rec.tracking.values()), default=0),
         "bad_messages": dict(getattr(link, "counts", {})),
         "robot_bad_messages": dict(getattr(link, "robot_counts", {})),
         "error": rec.error,
@@ -437,6 +449,10 @@ def one_line(s: dict) -> str:
         f"{f(s['period_ms_mean'])} ms mean / {f(s['period_ms_p99'])} ms p99 "
         f"(target {s['target_period_ms']:.2f}), {s['deadline_misses']} deadline misses, "
         f"round trip {f(s['round_trip_ms_p50'])} ms p50"
+        + "".join(
+            f", {k} tracking error {v:.3f} RMS"
+            for k, v in (s.get("tracking_error_rms") or {}).items()
+        )
     )
 
 

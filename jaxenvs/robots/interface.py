@@ -244,7 +244,12 @@ class HostTask:
     * :meth:`actuator_action`: ``env.actuator_action(action)``: the policy's action as an
       action in [-1, 1] per actuator;
     * :meth:`task_state`, :meth:`reward`, :meth:`terminated`: of the simulator's ground
-      truth (``qpos``, ``qvel``, ``mocap_pos``), for a simulated robot that publishes it.
+      truth (``qpos``, ``qvel``, ``mocap_pos``), for a simulated robot that publishes it;
+    * a task's optional hooks: ``task_input_shape``, ``with_task_input(task, value)``
+      (:meth:`with_input`: the operator's input, e.g. a joystick command, into the task
+      state), ``with_last_action(task, action)`` (:meth:`with_last_action`: for an
+      observation holding the last action) and ``tracking_errors(prev, data, task)``
+      (:meth:`tracking`: errors of a ground-truth step against the input in force).
     """
 
     def __init__(self, env: Any, seed: int = 0) -> None:
@@ -256,6 +261,10 @@ class HostTask:
         self._obs = jax.jit(env.observation)
         self._act = jax.jit(env.actuator_action)
         self._truth_fns = jax.jit(self._of_truth)
+        self._input = jax.jit(getattr(env, "with_task_input", lambda task, value: value))
+        self._last = jax.jit(getattr(env, "with_last_action", lambda task, action: task))
+        tracking = getattr(env, "tracking_errors", None)
+        self._tracking = None if tracking is None else jax.jit(self._tracking_of(tracking))
         #: the observation needs a task state that a reset does not give (known after
         #: :meth:`warm`): the ground truth's, or a task input
         self.needs_input = False
@@ -267,11 +276,13 @@ class HostTask:
 
     def warm(self, sizes: Mapping[str, int], truth: Mapping[str, np.ndarray]) -> tuple[int, ...]:
         """Compile every function once (before a real-time loop) on zero inputs of the
-        readings' ``sizes`` and of the ground truth's shapes; the shape of the task's own
-        state (``()`` when it has none or several parts)."""
+        readings' ``sizes`` and of the ground truth's shapes; the shape of the task's input
+        (``--command``): the task's ``task_input_shape``, else that of its own state (``()``
+        when it has none or several parts)."""
         readings = {name: np.zeros(size) for name, size in sizes.items()}
         self.actuator_action(self.zero_action)
         task, _, _ = self.of_truth(truth, truth, self.zero_action)
+        self._task0 = task
         self.observe(readings, task)
         try:
             self.observe(readings, self._extras)
@@ -280,17 +291,55 @@ class HostTask:
             self.needs_input = True  # the task's state must come from the truth or a command
         import jax
 
+        task = self.with_last_action(task, self.zero_action)
+        self.observe(readings, task)
+        self.tracking(truth, truth, task)
         leaves = jax.tree.leaves(task)
-        if len(leaves) != 1:
+        shape = getattr(self.env, "task_input_shape", None)
+        if shape is None and len(leaves) != 1:
             return ()
-        shape = tuple(np.shape(leaves[0]))
-        self.observe(readings, np.zeros(shape, np.float32))  # a task input (--command)
+        shape = tuple(np.shape(leaves[0])) if shape is None else tuple(shape)
+        value = np.zeros(shape, np.float32)  # a task input (--command)
+        self.observe(
+            readings, self.with_last_action(self.with_input(task, value), self.zero_action)
+        )
         return shape
+
+    def with_input(self, task: Any, value: np.ndarray) -> Any:
+        """The task state ``task`` with the task input ``value`` in force (the task's
+        ``with_task_input``; without one the input is the whole task state)."""
+        return self._input(task, value)
+
+    def with_last_action(self, task: Any, action: np.ndarray) -> Any:
+        """The task state after the loop sent ``action``, for a task whose observation
+        holds its last action (its ``with_last_action``); ``task`` itself otherwise."""
+        return self._last(task, action)
+
+    @staticmethod
+    def _tracking_of(fn: Any) -> Any:
+        def tracking(prev: Any, truth: Any, task: Any) -> Any:
+            p, d = types.SimpleNamespace(**prev), types.SimpleNamespace(**truth)
+            return fn(p, d, task)
+
+        return tracking
+
+    def tracking(
+        self, prev: Mapping[str, np.ndarray], truth: Mapping[str, np.ndarray], task: Any
+    ) -> dict[str, float]:
+        """The task's tracking errors (its ``tracking_errors``: e.g. a joystick's velocity
+        error against the command of ``task``) of the ground-truth step ``prev -> truth``;
+        ``{}`` for a task without them."""
+        if self._tracking is None:
+            return {}
+        return {k: float(v) for k, v in self._tracking(dict(prev), dict(truth), task).items()}
 
     def _of_truth(self, prev: Any, truth: Any, action: Any) -> Any:
         p, d = types.SimpleNamespace(**prev), types.SimpleNamespace(**truth)
         task = self.env.task_state(d, self._extras)
-        reward, _ = self.env._reward(p, d, action, self._extras, self._params)
+        try:
+            reward, _ = self.env._reward(p, d, action, self._extras, self._params)
+        except AttributeError:  # the reward needs more than the pose (e.g. servo forces)
+            reward = float("nan")
         return task, reward, self.env._terminated(d, self._extras, self._params)
 
     def observe(self, readings: Mapping[str, np.ndarray], task_state: Any) -> np.ndarray:
@@ -303,15 +352,17 @@ class HostTask:
 
     @property
     def default_task_state(self) -> Any:
-        """The task's own state at a reset with the loop's seed (e.g. ``NoExtras``)."""
-        return self._extras
+        """The task's own state at a reset with the loop's seed (e.g. ``NoExtras``), as
+        :meth:`warm`'s ground truth gives it once warmed."""
+        return getattr(self, "_task0", self._extras)
 
     def of_truth(
         self, prev: Mapping[str, np.ndarray], truth: Mapping[str, np.ndarray], action: np.ndarray
     ) -> tuple[Any, float, bool]:
         """(task state, reward, terminated) of the ground truth ``truth`` reached from
         ``prev`` with ``action`` in force (each a mapping of ``qpos``, ``qvel``,
-        ``mocap_pos``)."""
+        ``mocap_pos``); the reward is NaN for a task whose reward needs more than the
+        ground truth holds (``HexapodJoystick-v0``: the servos' forces)."""
         task, reward, term = self._truth_fns(dict(prev), dict(truth), action)
         return task, float(reward), bool(term)
 

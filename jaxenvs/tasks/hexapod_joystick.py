@@ -318,6 +318,36 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             obs = obs + self.config.obs_noise * OBS_NOISE * jax.random.normal(key, obs.shape)
         return obs
 
+    #: the shape of the task's input in a deploy loop (``jaxenvs deploy --command``): the
+    #: command (vx, vy, yaw rate)
+    task_input_shape = (3,)
+
+    def with_task_input(
+        self, task: tuple[jax.Array, jax.Array], command: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
+        """The task state ``(command, last_action)`` with ``command`` in force (a deploy
+        loop's task input)."""
+        return jnp.asarray(command, jnp.float32), task[1]
+
+    def with_last_action(
+        self, task: tuple[jax.Array, jax.Array], action: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
+        """The task state ``(command, last_action)`` after a deploy loop sent ``action``."""
+        return task[0], jnp.asarray(action, jnp.float32)
+
+    def tracking_errors(
+        self, prev: mjx.Data, data: mjx.Data, task: tuple[jax.Array, jax.Array]
+    ) -> dict[str, jax.Array]:
+        """``lin`` (|cmd_xy - v_xy|, m/s) and ``yaw`` (|cmd_yaw - yaw rate|, rad/s) of the
+        step ``prev -> data`` (one control period apart) under the command of ``task``: the
+        task's ``lin_error`` and ``yaw_error`` metrics."""
+        vel = self.velocity(prev, data)
+        command = task[0]
+        return {
+            "lin": jnp.sqrt(jnp.sum(jnp.square(command[:2] - vel[:2]))),
+            "yaw": jnp.abs(command[2] - vel[2]),
+        }
+
     @property
     def command_range(self) -> tuple[np.ndarray, np.ndarray]:
         """The lowest and highest command (vx, vy, yaw rate) of the config's ranges."""
