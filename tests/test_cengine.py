@@ -21,7 +21,7 @@ import jaxenvs
 from jaxenvs import machine
 from jaxenvs.actions import random_actions
 from jaxenvs.physics import cengine, resolve_engine
-from jaxenvs.testing import check_engine_parity, check_task
+from jaxenvs.testing import check_engine_parity
 
 BUILTIN = [
     "CartPole-v0",
@@ -32,7 +32,7 @@ BUILTIN = [
     "HexapodWalk-v0",
     "HexapodOneLeg-v0",
 ]
-DEFAULT_PARITY = ("CartpoleBalance-v0", "CartpoleStayUp-v0", "Reacher-v0", "HexapodOneLeg-v0")
+DEFAULT_PARITY = ("CartpoleStayUp-v0", "Reacher-v0")
 
 
 def test_every_registered_task_is_checked_here():
@@ -107,10 +107,6 @@ def test_every_provided_field_is_finite_after_a_walker_step():
     assert float(jnp.abs(data.actuator_force).max()) > 0  # the servos hold the stance
     assert float(jnp.abs(data.xpos[1]).max()) > 0  # the torso's pose, computed by C
     assert isinstance(data._impl.contact, cengine.Unavailable)
-
-
-def test_battery_under_c():
-    check_task(jaxenvs.make("CartpoleStayUp-v0", physics="c"), num_envs=4, rollout_steps=120)
 
 
 def test_nested_vmap_seeds_by_envs_matches_per_seed_runs():

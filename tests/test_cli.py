@@ -1,8 +1,11 @@
-"""``jaxenvs train`` / ``eval`` / ``compare`` and config files: errors name key and file."""
+"""``jaxenvs train`` / ``eval`` / ``compare`` / ``render`` / ``bench`` and config files:
+user errors are one line naming the key, flag or file (a traceback under ``--debug``)."""
 
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from importlib import resources
 
 import pytest
@@ -163,3 +166,129 @@ def test_train_eval_compare(tmp_path, capsys):
     # resuming a finished run re-evaluates and keeps the result
     assert cli.main(["train", "--resume", runs[0], "--quiet", "--no-compile-cache"]) == 0
     assert json.loads((tmp_path / "qlearning" / "summary.json").read_text())["chunks"] == 5
+
+
+# ------------------------------------------------------------- one-line errors
+
+
+def _one_line_error(code, err):
+    assert code == 2
+    lines = [ln for ln in err.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("jaxenvs "), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+@pytest.mark.parametrize("kind", ["bad_id", "missing_config", "corrupt_config", "bad_out"])
+def test_cli_user_errors_are_one_line(tmp_path, capsys, kind):
+    out = str(tmp_path / "run")
+    args = ["train", "CartPole-v0", "--algo", "qlearning", "--no-compile-cache", "--quiet"]
+    expect = ""
+    if kind == "bad_id":
+        args[1], expect = "NoSuchEnv-v7", "NoSuchEnv-v7"
+    elif kind == "missing_config":
+        expect = str(tmp_path / "missing.yaml")
+        args += ["--config", expect]
+    elif kind == "corrupt_config":
+        corrupt = tmp_path / "corrupt.yaml"
+        corrupt.write_text("algo: qlearning\nagent: {alpha: [0.1\n")
+        args += ["--config", str(corrupt)]
+        expect = str(corrupt)
+    else:
+        blocker = tmp_path / "a_file"
+        blocker.write_text("not a directory")
+        out = str(blocker / "run")
+        expect = str(blocker)
+    line = _one_line_error(cli.main([*args, "--out", out]), capsys.readouterr().err)
+    assert expect in line, line
+    assert not (tmp_path / "run").exists()
+
+
+def test_cli_debug_shows_the_traceback(tmp_path):
+    with pytest.raises(ValueError, match="unknown env id 'NoSuchEnv-v7'"):
+        cli.main(["--debug", "train", "NoSuchEnv-v7", "--algo", "qlearning", "--no-compile-cache"])
+
+
+def test_cli_eval_of_a_broken_run_is_one_line(tmp_path, capsys):
+    with fake_envs():
+        resolved = runner.resolve_config(
+            "Test-Chain-v0", "qlearning", None, CHAIN_AGENT, {"video": False}
+        )
+        run = tmp_path / "run"
+        run.mkdir()
+        (run / runner.CONFIG_FILE).write_text(yaml.safe_dump(resolved.to_dict()))
+        ckpt = run / runner.CHECKPOINT_FILE
+        ckpt.write_bytes(b"PK\x03\x04 cut short")
+        line = _one_line_error(cli.main(["eval", str(run)]), capsys.readouterr().err)
+        assert "truncated or corrupt" in line and str(ckpt) in line
+        line = _one_line_error(cli.main(["eval", str(tmp_path)]), capsys.readouterr().err)
+        assert "not a run directory" in line
+
+
+def test_cli_error_exit_in_a_real_process(tmp_path):
+    """The installed entry point: exit status 2 and no traceback on stderr."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxenvs", "train", "NoSuchEnv-v7", "--algo", "qlearning"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "jaxenvs train: error: unknown env id 'NoSuchEnv-v7'" in proc.stderr
+
+
+HUGE = 99999999999999999999999
+
+
+def _flag_error(capsys, argv: list[str], *names: str) -> str:
+    """``jaxenvs ARGV`` exits 2 with one line naming each of ``names``."""
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"jaxenvs {argv[0]}: error:"), err
+    assert "\n" not in err and "Traceback" not in err, err
+    for name in names:
+        assert name in err, err
+    return err
+
+
+@pytest.mark.parametrize(
+    ("argv", "name"),
+    [
+        (["--seed", str(HUGE)], "'seed'"),
+        (["--seed", "-1"], "'seed'"),
+        (["--num-envs", str(HUGE)], "'num_envs'"),
+        (["--num-envs", "0"], "'num_envs'"),
+        (["--total-steps", str(2**40)], "'total_steps'"),
+        (["--num-seeds", "-3"], "'num_seeds'"),
+        (["--eval-episodes", str(2**31)], "'eval_episodes'"),
+        (["--devices", str(HUGE)], "--devices"),
+    ],
+)
+def test_train_flags(capsys, tmp_path, argv, name):
+    base = ["train", "CartPole-v0", "--algo", "qlearning", "--out", str(tmp_path / "r")]
+    _flag_error(capsys, base + argv, name)
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "name"),
+    [
+        (["eval", "DIR", "--episodes", str(HUGE)], "--episodes"),
+        (["eval", "DIR", "--episodes", "0"], "--episodes"),
+        (["eval", "DIR", "--seed", str(HUGE)], "--seed"),
+        (["eval", "DIR", "--seed", "-5"], "--seed"),
+        (["render", "CartPole-v0", "--seed", str(HUGE)], "--seed"),
+        (["render", "CartPole-v0", "--steps", str(HUGE)], "--steps"),
+        (["render", "CartPole-v0", "--width", "-640"], "--width"),
+        (["render", "CartPole-v0", "--fps", "inf"], "--fps"),
+        (["render", "CartPole-v0", "--fps", "nan"], "--fps"),
+        (["bench", "--target-s", "nan"], "--target-s"),
+    ],
+)
+def test_other_commands_flags(capsys, tmp_path, argv, name):
+    argv = [str(tmp_path) if a == "DIR" else a for a in argv]
+    if argv[0] == "render":
+        argv += ["--out", str(tmp_path / "v.mp4")]
+    _flag_error(capsys, argv, name)

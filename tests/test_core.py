@@ -9,6 +9,7 @@ import pytest
 
 import jaxenvs
 from jaxenvs.config import ConfigError
+from jaxenvs.core import BatchedEnv
 
 
 def test_list_envs_has_the_cartpoles():
@@ -43,32 +44,6 @@ def test_override_applies():
 def test_spaces_and_sizes():
     env = jaxenvs.make("CartPole-v0")
     assert env.action_space.n == 2 and env.observation_space.shape == (4,)
-
-
-def test_wrong_action_shape_and_dtype():
-    env = jaxenvs.make("CartpoleBalance-v0")
-    s = env.reset(jax.random.key(0))
-    with pytest.raises(ValueError, match=r"expected an action of shape \(1,\)"):
-        env.step(s, jnp.zeros(2))
-    with pytest.raises(TypeError, match="floating-point"):
-        env.step(s, jnp.zeros(1, jnp.int32))
-    denv = jaxenvs.make("CartPole-v0")
-    ds = denv.reset(jax.random.key(0))
-    with pytest.raises(TypeError, match="integer action"):
-        denv.step(ds, jnp.float32(1.0))
-
-
-def test_nan_action_never_reaches_physics():
-    env = jaxenvs.make("CartpoleBalance-v0")
-    step = jax.jit(env.step)
-    s = env.reset(jax.random.key(0))
-    bad = step(s, jnp.array([jnp.nan]))
-    zero = step(s, jnp.array([0.0]))
-    assert int(bad.info["nan_actions"]) == 1 and int(zero.info["nan_actions"]) == 0
-    np.testing.assert_array_equal(np.asarray(bad.data.qpos), np.asarray(zero.data.qpos))
-    big = step(s, jnp.array([1e9]))
-    one = step(s, jnp.array([1.0]))
-    np.testing.assert_array_equal(np.asarray(big.data.qpos), np.asarray(one.data.qpos))
 
 
 def test_discrete_out_of_range_is_clipped():
@@ -163,3 +138,150 @@ def test_params_change_dynamics():
     v_default = float(env.step(s, a).obs[3])
     v_heavy = float(env.step(s, a, heavy).obs[3])
     assert abs(v_heavy) < abs(v_default)
+
+
+# ------------------------------------------------ actions and divergence, batched
+
+
+N = 4
+
+
+@pytest.fixture(scope="module")
+def balance(get_batched):
+    """CartpoleBalance, batched over N envs: one jitted reset and step for the session."""
+    return get_batched("CartpoleBalance-v0", N)
+
+
+def test_wrong_action_shape_fails_at_trace_time_naming_the_shape(balance):
+    benv, _, _ = balance
+    env = benv.env
+    s = jax.eval_shape(env.reset, jax.random.key(0))  # tracing only: nothing compiles
+    traced = []
+
+    def step(state, action):
+        traced.append(action.shape)
+        return env.step(state, action)
+
+    with pytest.raises(ValueError, match=r"expected an action of shape \(1,\)"):
+        jax.jit(step)(s, jnp.zeros((3,)))
+    assert traced == [(3,)]  # raised while tracing, nothing ran on device
+    with pytest.raises(TypeError, match="floating-point.*Box"):
+        jax.jit(env.step)(s, jnp.zeros((1,), jnp.int32))
+    bs = jax.eval_shape(benv.reset, jax.random.key(0))
+    with pytest.raises(ValueError, match=r"expected actions of shape \(4, 1\)"):
+        jax.jit(benv.step)(bs, jnp.zeros((N,)))
+    discrete = jaxenvs.make("CartPole-v0")
+    ds = jax.eval_shape(discrete.reset, jax.random.key(0))
+    with pytest.raises(TypeError, match="integer action"):
+        jax.jit(discrete.step)(ds, jnp.float32(1.0))
+
+
+def test_out_of_range_actions_are_clipped(balance):
+    benv, reset, step = balance
+    s = reset(jax.random.key(1))
+    over = step(s, jnp.array([[5.0], [-5.0], [1.5], [-1e30]]))
+    edge = step(s, jnp.array([[1.0], [-1.0], [1.0], [-1.0]]))
+    np.testing.assert_array_equal(np.asarray(over.data.qpos), np.asarray(edge.data.qpos))
+    np.testing.assert_array_equal(np.asarray(over.info["nan_actions"]), np.zeros(N))
+
+
+def test_nan_and_inf_actions_are_zeroed_counted_and_isolated(balance):
+    """Each non-finite action acts as 0 and is counted for its own env only."""
+    benv, reset, step = balance
+    s = reset(jax.random.key(2))
+    bad = step(s, jnp.array([[jnp.nan], [jnp.inf], [0.3], [-jnp.inf]]))
+    good = step(s, jnp.array([[0.0], [0.0], [0.3], [0.0]]))
+    assert np.asarray(bad.info["nan_actions"]).tolist() == [1, 1, 0, 1]
+    assert np.asarray(good.info["nan_actions"]).tolist() == [0, 0, 0, 0]
+    for a, b in zip(jax.tree.leaves(bad.data), jax.tree.leaves(good.data), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    np.testing.assert_array_equal(np.asarray(bad.obs), np.asarray(good.obs))
+
+
+def test_extreme_actions_keep_the_state_finite(balance):
+    """60 steps of +-1e9 / +-inf / NaN: finite obs, rewards and physics throughout."""
+    benv, reset, step = balance
+    s = reset(jax.random.key(3))
+    values = jnp.array([1e9, -1e9, jnp.inf, jnp.nan], jnp.float32)
+    for t in range(60):
+        s = step(s, jnp.roll(values, t)[:, None])
+        for x in (s.obs, s.reward, s.data.qpos, s.data.qvel, s.info["final_obs"]):
+            assert np.all(np.isfinite(np.asarray(x))), t
+    assert int(np.asarray(s.info["nan_actions"]).sum()) == 2  # NaN and inf, each step
+
+
+def test_diverged_env_is_flagged_reset_and_the_others_untouched(balance):
+    """A velocity past the documented bound (finite, not NaN) also terminates."""
+    benv, reset, step = balance
+    s = reset(jax.random.key(4))
+    bound = benv.config.divergence_bound
+    qvel = s.data.qvel.at[2, 0].set(10 * bound)
+    poisoned = s.replace(data=s.data.replace(qvel=qvel))
+    a = jnp.full((N, 1), 0.5, jnp.float32)
+    clean, bad = step(s, a), step(poisoned, a)
+    assert np.asarray(bad.info["diverged"]).tolist() == [False, False, True, False]
+    assert bool(bad.terminated[2]) and int(bad.time[2]) == 0 and float(bad.reward[2]) == 0.0
+    assert np.all(np.abs(np.asarray(bad.data.qvel[2])) < bound)  # reset to a fresh start
+    assert np.all(np.abs(np.asarray(bad.info["final_obs"][2])) <= bound)
+    for i in (0, 1, 3):
+        for x, y in zip(jax.tree.leaves(clean), jax.tree.leaves(bad), strict=True):
+            if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+                x, y = jax.random.key_data(x), jax.random.key_data(y)
+            np.testing.assert_array_equal(np.asarray(x[i]), np.asarray(y[i]))
+
+
+def test_batched_reset_and_step_compile_once(balance):
+    """Feeding step's output back in, NaN actions and auto-resets never retrace."""
+    benv, reset, step = balance
+    s = reset(jax.random.key(5))
+    s = reset(jax.random.key(6))
+    for t in range(30):
+        a = jnp.full((N, 1), jnp.nan if t % 3 == 0 else 1.0, jnp.float32)
+        s = step(s, a)
+    assert bool(np.asarray(s.info["final_length"]).max() > 0)
+    assert reset._cache_size() == 1
+    assert step._cache_size() == 1
+
+
+# ------------------------------------------------- keys and states of the wrong kind
+
+
+@pytest.fixture(scope="module")
+def envs():
+    env = jaxenvs.make("CartPole-v0", physics="c")
+    batched = BatchedEnv(env, 3)
+    return env, batched, env.reset(jax.random.key(0)), batched.reset(jax.random.key(0))
+
+
+@pytest.mark.parametrize(
+    "call, error, words",
+    [
+        (lambda e, b, s, bs: e.reset(0), TypeError, "CartPole.reset: expected a PRNG key"),
+        (
+            lambda e, b, s, bs: e.reset(jax.random.split(jax.random.key(0), 3)),
+            ValueError,
+            "CartPole.reset: expected one PRNG key",
+        ),
+        (lambda e, b, s, bs: e.step(bs, 0), ValueError, "CartPole.step: expected one env's state"),
+        (lambda e, b, s, bs: e.step({}, 0), TypeError, "CartPole.step: expected a State"),
+        (lambda e, b, s, bs: b.reset(0), TypeError, "batched CartPole.reset: expected a PRNG key"),
+        (
+            lambda e, b, s, bs: b.step(s, np.zeros(3, np.int32)),
+            ValueError,
+            "batched CartPole.step: expected a state of 3 envs, got one env's state",
+        ),
+    ],
+)
+def test_the_wrong_key_or_state_gets_the_envs_own_message(envs, call, error, words):
+    with pytest.raises(error) as err:
+        call(*envs)
+    assert str(err.value).startswith(words) and "\n" not in str(err.value)
+
+
+def test_the_right_keys_and_states_still_work(envs):
+    env, batched, state, batch_state = envs
+    assert env.step(state, 1).time == 1
+    assert batched.step(batch_state, np.ones(3, np.int32)).time.shape == (3,)
+    assert env.reset(jax.random.PRNGKey(0)).obs.shape == (env.observation_size,)
+    stepped = jax.vmap(env.step)(batch_state, np.ones(3, np.int32))
+    assert stepped.time.shape == (3,)

@@ -440,6 +440,7 @@ def test_next_step_starts_where_same_step_starts():
     same.close()
 
 
+@pytest.mark.full  # two randomised vector programs
 def test_randomized_next_step_draws_params_as_same_step():
     """With domain randomisation a NEXT_STEP reset draws new params, the ones SAME_STEP
     draws for the same env one step earlier."""
@@ -465,6 +466,7 @@ def test_randomized_next_step_draws_params_as_same_step():
     same.close()
 
 
+@pytest.mark.full  # NEXT_STEP, the default, is in the default tier
 def test_same_step_autoreset_matches_sync_vector_env():
     """SAME_STEP: an env that ends at t returns a fresh start at t; its last obs and info
     are in final_obs / final_info, with the structure SyncVectorEnv gives."""

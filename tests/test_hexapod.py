@@ -119,8 +119,8 @@ def test_walker_observation_and_reward_terms(walk):
 def test_walker_noise_options_default_off_and_keyed():
     """action_noise / obs_noise: off by default (the noiseless observation), and drawn
     from the hooks' keys (same key, same noise; another key, other noise)."""
-    quiet = HexapodWalk(WalkConfig(physics="mjx"))
-    noisy = HexapodWalk(WalkConfig(physics="mjx", action_noise=0.1, obs_noise=1.0))
+    quiet = HexapodWalk(WalkConfig(physics="c"))
+    noisy = HexapodWalk(WalkConfig(physics="c", action_noise=0.1, obs_noise=1.0))
     key = jax.random.key(3)
     s0, n0 = quiet.reset(key), noisy.reset(key)
     np.testing.assert_array_equal(s0.obs, _noiseless(quiet, s0))

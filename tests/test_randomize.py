@@ -156,7 +156,10 @@ def test_bad_ranges_rejected_at_make(env_id, bad):
 N = 8
 
 
-@pytest.fixture(scope="module", params=["Reacher-v0", "CartpoleBalance-v0"])
+@pytest.fixture(
+    scope="module",
+    params=[pytest.param("Reacher-v0", marks=pytest.mark.full), "CartpoleBalance-v0"],
+)
 def dr(request):
     """A single env and jitted functions that step N envs from ONE reset key with the
     same actions, once with per-env sampled params and once with the defaults."""

@@ -297,3 +297,20 @@ def test_train_command_rejects_more_devices_than_present(
     assert code == 2
     err = capsys.readouterr().err
     assert f"asked for {too_many} devices" in err and "available" in err
+
+
+def test_batch_not_divisible_by_devices_is_one_line(tmp_path):
+    """Two forced CPU devices, three envs: the key and the flag to change are named."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxenvs", "train", "CartPole-v0", "--algo", "qlearning"]
+        + ["--num-envs", "3", "--devices", "2", "--out", str(tmp_path / "run")]
+        + ["--no-compile-cache", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"},
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert "num_envs=3 does not divide evenly over 2 devices" in proc.stderr
+    assert "--devices" in proc.stderr

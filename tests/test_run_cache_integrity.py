@@ -341,6 +341,7 @@ def _damaged_cache_heals(clean, tmp_path, damage) -> None:
     assert _files(cache) == before  # every program and entry loaded, none rebuilt
 
 
+@pytest.mark.full  # three whole MJX training runs in subprocesses
 def test_every_file_with_flipped_bytes(clean, tmp_path):
     _damaged_cache_heals(clean, tmp_path, lambda c: [_flip(p) for p in _files_in(c)])
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import re
 import shutil
 import signal
 from collections.abc import Callable
@@ -13,13 +15,16 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from tabular_fakes import fake_envs
 
-from jaxenvs import cli
+from jaxenvs import cli, files
 from jaxenvs.run import checkpoint, loop, runner
 from jaxenvs.run.checkpoint import CheckpointError
+
+REPO = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -202,3 +207,69 @@ def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
     )
     for a, b in zip(stopped_leaves, whole_leaves, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.fixture()
+def saved(tmp_path):
+    state = {"w": jnp.arange(6.0).reshape(2, 3), "key": jax.random.key(1), "n": jnp.int32(4)}
+    path = tmp_path / "ck.npz"
+    checkpoint.save(path, state, {"chunk": 1})
+    return path, state
+
+
+def test_checkpoint_write_is_atomic(saved, monkeypatch):
+    """A crash (or Ctrl-C) during the rename keeps the old file and leaves no temp file."""
+    path, state = saved
+    before = path.read_bytes()
+
+    def crash(src, dst):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(files.os, "replace", crash)  # the rename every atomic write ends with
+    newer = {**state, "w": state["w"] + 100.0}
+    with pytest.raises(KeyboardInterrupt):
+        checkpoint.save(path, newer, {"chunk": 2})
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in path.parent.iterdir()) == [path.name]
+    restored, meta = checkpoint.load(path, jax.eval_shape(lambda: state))
+    assert meta == {"chunk": 1}
+    np.testing.assert_array_equal(restored["w"], state["w"])
+
+
+def test_checkpoint_is_versioned_and_other_versions_are_refused(saved, tmp_path):
+    path, state = saved
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    meta = json.loads(arrays["__meta__"].tobytes())
+    assert meta["format"] == "jaxenvs-checkpoint" and meta["version"] == checkpoint.FORMAT_VERSION
+    assert re.fullmatch(r"[0-9a-f]{64}", meta["sha256"])
+    assert all(a.dtype != object for a in arrays.values())
+    meta["version"] = checkpoint.FORMAT_VERSION + 1
+    arrays["__meta__"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    future = tmp_path / "future.npz"
+    np.savez(future, **arrays)
+    with pytest.raises(CheckpointError, match=rf"future\.npz.*version {meta['version']} is not"):
+        checkpoint.load(future, jax.eval_shape(lambda: state))
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(os.urandom(512))
+    with pytest.raises(CheckpointError, match="garbage.npz.*truncated or corrupt"):
+        checkpoint.load(garbage, jax.eval_shape(lambda: state))
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    with pytest.raises(CheckpointError, match="empty.npz"):
+        checkpoint.read(empty)
+
+
+def test_no_pickle_anywhere_in_the_package():
+    pattern = re.compile(
+        r"^\s*(import|from)\s+(pickle|cPickle|cloudpickle|dill|joblib|shelve)\b"
+        r"|allow_pickle\s*=\s*True|torch\.(save|load)\b",
+        re.M,
+    )
+    offenders = [
+        f"{p.relative_to(REPO)}: {m.group(0).strip()}"
+        for p in sorted((REPO / "jaxenvs").rglob("*.py"))
+        for m in pattern.finditer(p.read_text())
+    ]
+    assert not offenders, offenders
+    assert "allow_pickle=False" in (REPO / "jaxenvs/run/checkpoint.py").read_text()

@@ -1,8 +1,8 @@
 """Training guarantees: determinism, resume after any chunk, divergence in the metrics,
 one compile of the training chunk.
 
-tests/test_runner.py already checks a tabular resume after chunk 2 and one Ctrl-C; here
-every chunk boundary is tried, and a tiny PPO run on real physics (CartpoleBalance, with a
+A tabular resume is tried at every chunk boundary (tests/test_run_checkpoint.py sends a
+real SIGINT mid-chunk), and a tiny PPO run on real physics (CartpoleBalance, with a
 divergence bound low enough that some envs diverge) is checked for bit-identical repeats
 and a Ctrl-C + resume: on the engine ``physics="auto"`` picks (the C engine on a CPU) in
 the default tier, on MJX in the full tier. Each trainer is compiled once for the module.

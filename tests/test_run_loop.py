@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from tabular_fakes import fake_envs
 
+from jaxenvs.agents import ppo
 from jaxenvs.config import config_to_dict
 from jaxenvs.run import checkpoint, loop, runner
 from jaxenvs.run.checkpoint import CheckpointError
@@ -81,20 +82,6 @@ def test_outputs_and_summary(full_run):
         eps = int(mine[-1]["episodes"])
         assert summary["overall_score_per_seed"][k] == pytest.approx(total / eps, rel=1e-5)
         assert 6 <= summary["best_100_score_per_seed"][k] <= 12
-
-
-def test_resume_matches_an_uninterrupted_run(full_run, tmp_path):
-    out_a, summary_a = full_run
-    out_b = tmp_path / "b"
-    half = runner.train(_chain_config(), out_b, quiet=True, max_chunks=2)
-    assert half["chunks"] == 2 and not half["finished"]
-    assert len(runner.read_progress(out_b / "progress.csv")) == 4
-    summary_b = runner.train(runner.load_run_config(out_b), out_b, resume=True, quiet=True)
-    for a, b in zip(_leaves(out_a), _leaves(out_b), strict=True):
-        np.testing.assert_array_equal(a, b)
-    assert _progress(out_a) == _progress(out_b)
-    for key in ("eval_mean_return", "env_steps", "episodes", "overall_score", "best_100_score"):
-        assert summary_a[key] == summary_b[key], key
 
 
 def test_ctrl_c_leaves_a_valid_checkpoint_and_results(full_run, tmp_path, monkeypatch):
@@ -198,3 +185,47 @@ def test_evaluate_run(full_run):
     out_a, _ = full_run
     result = runner.evaluate_run(out_a, episodes=4)
     assert result["episodes"] == 8 and result["mean_return"] == 1.0
+
+
+# ------------------------------------------------- total_steps in whole chunks
+
+
+@pytest.mark.parametrize("total, chunks", [(1, 1), (64, 1), (65, 2), (100, 2), (128, 2)])
+def test_ppo_rounds_up_to_whole_chunks(total, chunks):
+    config = ppo.PPOConfig(total_steps=total, num_envs=4, num_steps=16, updates_per_chunk=1)
+    assert config.steps_per_chunk == 64
+    assert config.num_chunks == chunks
+
+
+def test_every_algorithm_rounds_the_same_way():
+    agent = {"number_splits": 7, "obs_low": [0.0], "obs_high": [7.0], "num_envs": 2}
+    agent.update(chunk_steps=32, total_steps=65)
+    _, tab_trainer = runner.build(runner.resolve_config("Test-Chain-v0", "qlearning", None, agent))
+    ppo_config = ppo.PPOConfig(total_steps=65, num_envs=2, num_steps=32, updates_per_chunk=1)
+    assert tab_trainer.steps_per_chunk == ppo_config.steps_per_chunk == 64
+    assert tab_trainer.num_chunks == ppo_config.num_chunks == 2
+
+
+def test_the_run_names_the_steps_it_will_take(tmp_path):
+    agent = {
+        "number_splits": 7,
+        "obs_low": [0.0],
+        "obs_high": [7.0],
+        "num_envs": 2,
+        "chunk_steps": 30,
+        "total_steps": 100,
+    }
+    resolved = runner.resolve_config(
+        "Test-Chain-v0", "qlearning", None, agent, {"eval_episodes": 1, "video": False}
+    )
+    notices: list[str] = []
+    summary = runner.train(resolved, tmp_path / "run", log=notices.append)
+    line = "total_steps 100 rounds up to whole chunks: 120 env steps per seed (2 chunks of 60)"
+    assert line in notices, notices
+    assert summary["env_steps"] == 120
+    exact = runner.resolve_config(
+        "Test-Chain-v0", "qlearning", None, {**agent, "total_steps": 120}, {"video": False}
+    )
+    notices.clear()
+    runner.train(exact, tmp_path / "exact", log=notices.append)
+    assert not any("rounds up" in n for n in notices), notices
