@@ -27,6 +27,7 @@ def _check_result(res: dict) -> None:
     assert res["first_call_s"] >= res["compile_s"] > 0
 
 
+@pytest.mark.full
 def test_bench_writes_valid_json_beside_the_peers(tmp_path) -> None:
     """One engine (C: no physics to compile); the full tier times both side by side. The
     peers installed with the package run in the same rounds, the others are listed skipped,

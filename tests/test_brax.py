@@ -53,6 +53,7 @@ def test_interface(env: BraxEnv) -> None:
     assert env.unwrapped is env
 
 
+@pytest.mark.full
 def test_reset_and_step_match_jaxenvs(env: BraxEnv) -> None:
     @jax.jit
     def both(key: jax.Array, action: jax.Array) -> tuple:
@@ -71,6 +72,7 @@ def test_reset_and_step_match_jaxenvs(env: BraxEnv) -> None:
     assert nxt.reward.dtype == jnp.float32 and nxt.done.dtype == jnp.float32
 
 
+@pytest.mark.full
 def test_done_is_termination_and_truncation_is_flagged(env: BraxEnv) -> None:
     """Unwrapped: the task's time limit shows in info['truncation'], not in done."""
 
@@ -89,6 +91,7 @@ def test_done_is_termination_and_truncation_is_flagged(env: BraxEnv) -> None:
     assert float(last.done) == float(last.pipeline_state.terminated)
 
 
+@pytest.mark.full
 def test_brax_wrappers_truncate_and_reset(wrapped_rollout: tuple[list, object]) -> None:
     states, first = wrapped_rollout
     for t, s in enumerate(states, start=1):

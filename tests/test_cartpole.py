@@ -24,6 +24,7 @@ def _gym_cartpole(integrator: str):
     return g
 
 
+@pytest.mark.full
 def test_classic_tracks_gymnasium_semi_implicit(classic):
     """MJX's Euler is semi-implicit; Gymnasium's CartPole in that mode must agree to
     float32 precision (same masses, pole inertia, force and 0.02 s step)."""
@@ -77,6 +78,7 @@ def test_classic_terminates_past_12_degrees(classic):
     assert float(s.reward) == 1.0
 
 
+@pytest.mark.full
 def test_classic_start_distribution(classic):
     env, reset, _ = classic
     obs = np.stack([np.asarray(reset(k).obs) for k in jax.random.split(jax.random.key(2), 64)])
@@ -84,6 +86,7 @@ def test_classic_start_distribution(classic):
     assert obs.std(axis=0).min() > 0.02  # uniform on +-0.05 has std 0.029
 
 
+@pytest.mark.full
 def test_swingup_starts_hanging():
     env = jaxenvs.make("CartpoleSwingup-v0")
     obs = np.asarray(jax.vmap(env.reset)(jax.random.split(jax.random.key(0), 32)).obs)
@@ -93,6 +96,7 @@ def test_swingup_starts_hanging():
     assert obs[1] > 0.99
 
 
+@pytest.mark.full
 def test_balance_reward_is_dense_and_bounded():
     env = jaxenvs.make("CartpoleBalance-v0")
     s = env.reset(jax.random.key(0))
@@ -102,6 +106,7 @@ def test_balance_reward_is_dense_and_bounded():
     assert float(s.reward) < 0.85  # full force costs the small-control factor
 
 
+@pytest.mark.full
 def test_stayup_commands_move_the_cart():
     env = jaxenvs.make("CartpoleStayUp-v0", init_noise=0.0, max_pole_angle=3.2, min_pole_angle=-3.2)
     step = jax.jit(env.step)

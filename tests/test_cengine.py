@@ -97,6 +97,7 @@ def test_the_built_env_records_its_engine():
     assert jaxenvs.make("Reacher-v0", physics="mjx").config.physics == "mjx"
 
 
+@pytest.mark.full
 def test_every_provided_field_is_finite_after_a_walker_step():
     env = jaxenvs.make("HexapodWalk-v0", physics="c")
     state = jax.jit(env.step)(jax.jit(env.reset)(jax.random.key(0)), jnp.zeros(18))
@@ -109,6 +110,7 @@ def test_every_provided_field_is_finite_after_a_walker_step():
     assert isinstance(data._impl.contact, cengine.Unavailable)
 
 
+@pytest.mark.full
 def test_nested_vmap_seeds_by_envs_matches_per_seed_runs():
     benv = jaxenvs.make("CartPole-v0", num_envs=3, physics="c")
     keys = jax.random.split(jax.random.key(0), 2)
@@ -147,6 +149,7 @@ def _roller(benv, steps):
     return jax.jit(roll)
 
 
+@pytest.mark.full
 def test_same_key_same_trajectory_whatever_the_thread_count(monkeypatch):
     monkeypatch.setattr(machine, "_cores", 2)
     two = jaxenvs.make("CartpoleBalance-v0", num_envs=32, physics="c", randomize=True)
@@ -173,6 +176,7 @@ def test_domain_randomisation_matches_mjx_env_by_env():
     np.testing.assert_allclose(oc, om, atol=1e-4, rtol=1e-4)
 
 
+@pytest.mark.full
 def test_domain_randomisation_is_honoured():
     """Per-env params reach the C model: envs whose params differ move differently from
     the same start and actions (the full tier checks each against MJX env by env)."""

@@ -134,6 +134,7 @@ def test_missing_algorithm_module_is_reported(monkeypatch):
         runner.resolve_config("CartPole-v0", "ppo")
 
 
+@pytest.mark.full
 def test_train_eval_compare(tmp_path, capsys):
     # --no-compile-cache: the tests must not switch on the persistent cache process-wide
     runs = []
@@ -225,6 +226,7 @@ def test_cli_eval_of_a_broken_run_is_one_line(tmp_path, capsys):
         assert "not a run directory" in line
 
 
+@pytest.mark.full
 def test_cli_error_exit_in_a_real_process(tmp_path):
     """The installed entry point: exit status 2 and no traceback on stderr."""
     proc = subprocess.run(

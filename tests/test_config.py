@@ -135,6 +135,7 @@ def test_a_config_file_over_the_limit_is_refused_before_parsing(tmp_path):
     assert str(path) in message and str(config.MAX_CONFIG_BYTES) in message
 
 
+@pytest.mark.full
 def test_junk_keys_are_named_a_few_at_a_time(tmp_path, capsys):
     path = tmp_path / "junk.yaml"
     junk = {f"junk_key_{i:05d}": i for i in range(20_000)}

@@ -129,6 +129,7 @@ def test_scan_unroll_hint_does_not_change_results():
     assert np.asarray(done1).any()
 
 
+@pytest.mark.full
 def test_params_change_dynamics():
     env = jaxenvs.make("CartpoleBalance-v0")
     s = env.reset(jax.random.key(0))

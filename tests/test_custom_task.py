@@ -56,6 +56,7 @@ def test_passes_the_battery(physics: str) -> None:
     check_task(env, num_envs=4, rollout_steps=120)
 
 
+@pytest.mark.full
 def test_make_batched_and_overrides() -> None:
     benv = jaxenvs.make(CLI_ID, num_envs=4, max_torque=3.0, physics=TASK_LOGIC)
     assert isinstance(benv, jaxenvs.BatchedEnv) and benv.config.max_torque == 3.0
@@ -70,6 +71,7 @@ def test_make_batched_and_overrides() -> None:
         jaxenvs.make(ID, max_torque=-1.0)
 
 
+@pytest.mark.full
 def test_gymnasium_make() -> None:
     env = gymnasium.make(f"jaxenvs/{ID}", physics=TASK_LOGIC)
     assert env.spec is not None and env.spec.max_episode_steps == 200
@@ -99,6 +101,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.full
 def test_train_from_the_command_line(run_dir: Path) -> None:
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["env_steps"] >= 800 and np.isfinite(summary["eval_mean_return"])
@@ -106,6 +109,7 @@ def test_train_from_the_command_line(run_dir: Path) -> None:
     assert summary["physics"] == TASK_LOGIC
 
 
+@pytest.mark.full
 def test_trained_policy_plays(run_dir: Path) -> None:
     from jaxenvs.run.runner import load_policy
 
@@ -123,6 +127,7 @@ def test_view_policy_must_match_the_id(
     assert f"is a run of {CLI_ID}, not CartPole-v0" in capsys.readouterr().err
 
 
+@pytest.mark.full
 def test_render_a_video_of_the_policy(run_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "pendulum.gif"
     argv = [
@@ -145,6 +150,7 @@ def test_tutorial_listings_are_the_example_files() -> None:
         assert text == (ROOT / path).read_text(), f"docs/custom_task.md shows an old {path}"
 
 
+@pytest.mark.full
 def test_bench_from_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:
     argv = [
         "bench", "--tasks", CLI_ID, "--batches", "2", "--modes", "full",
@@ -175,15 +181,18 @@ class Retraces(Pendulum):
         return data, extras + 0.5
 
 
+@pytest.mark.full
 def test_example_with_observation_noise_passes_the_battery() -> None:
     check_task(Pendulum(PendulumConfig(physics=TASK_LOGIC, obs_noise=0.1)), rollout_steps=50)
 
 
+@pytest.mark.full
 def test_battery_names_a_reset_that_ignores_its_key() -> None:
     with pytest.raises(TaskCheckError, match=r"^\[determinism\] reset with different keys"):
         check_task(IgnoresKey(PendulumConfig(physics=TASK_LOGIC)))
 
 
+@pytest.mark.full
 def test_battery_names_a_step_that_retraces() -> None:
     with pytest.raises(TaskCheckError, match=r"^\[single_trace\] reset traced 1x and step [2-9]x"):
         check_task(Retraces(PendulumConfig(physics=TASK_LOGIC)))
@@ -219,6 +228,7 @@ def test_installed_package_found_through_entry_point(
         sys.modules.pop("toy_plugin", None)
 
 
+@pytest.mark.full
 def test_installed_package_listed_by_the_command_line(tmp_path: Path) -> None:
     """A real installed distribution (a dist-info with an entry point) on sys.path."""
     (tmp_path / "toy_plugin.py").write_text(

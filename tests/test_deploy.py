@@ -156,6 +156,7 @@ def test_deploy_cartpole_through_the_simulated_robot(tmp_path):
     assert video.stat().st_size > 1000 and f"{len(messages['/robot/state'])} frames" in done.stdout
 
 
+@pytest.mark.full
 def test_deploy_reacher_takes_its_target_from_the_ground_truth(tmp_path):
     """Reacher's observation needs the target: the loop waits for the simulated robot's
     first ground truth and acts on it; the return is the task's (negative distances)."""
@@ -207,6 +208,7 @@ def test_deploy_reacher_takes_its_target_from_the_ground_truth(tmp_path):
     assert all(c["task"] == pytest.approx(target) for c in commands)
 
 
+@pytest.mark.full
 def test_robot_killed_mid_run(tmp_path):
     robot = _jaxenvs("robot", "CartPole-v0", "--listen", "tcp://127.0.0.1:0", "--once")
     assert robot.stdout is not None
@@ -256,6 +258,7 @@ def struct_frame(body: bytes) -> bytes:
     return len(body).to_bytes(4, "big") + body
 
 
+@pytest.mark.full
 def test_robot_sending_garbage(tmp_path):
     import jaxenvs
     from jaxenvs.robots.interface import spec_of
@@ -285,6 +288,7 @@ def test_robot_sending_garbage(tmp_path):
         server.close()
 
 
+@pytest.mark.full
 @pytest.mark.parametrize(
     ("gains", "flags", "cause"),
     [
@@ -315,6 +319,7 @@ def test_policy_failures_hold_and_stop(tmp_path, gains, flags, cause):
         deploy.kill()
 
 
+@pytest.mark.full
 def test_deploy_refuses_a_policy_of_another_task(tmp_path):
     done = subprocess.run(
         [

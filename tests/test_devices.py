@@ -176,10 +176,12 @@ def _knob(mode: str) -> str:
     return proc.stdout
 
 
+@pytest.mark.full
 def test_use_cores_sets_devices_and_threads_before_jax_starts():
     assert _knob("early").split() == ["4", "8"]  # one XLA CPU device per two cores
 
 
+@pytest.mark.full
 def test_use_cores_too_late_says_how_to_fix():
     out = _knob("late")
     assert "raised: jaxenvs.machine.use_cores came after JAX started" in out

@@ -203,6 +203,7 @@ def _one_line_error(capsys, argv: list[str], match: str) -> None:
     assert match in err, err
 
 
+@pytest.mark.full
 def test_bad_input_is_one_line(runs, tmp_path, capsys):
     run = runs["Reacher-v0"]
     tabular = tmp_path / "tabular"

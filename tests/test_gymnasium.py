@@ -151,6 +151,7 @@ def test_single_env_state_round_trips_bit_for_bit(cartpole_env):
         np.testing.assert_array_equal(*bits)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("env_id", ["CartPole-v0", "Reacher-v0"])
 def test_single_env_buffers_stay_small(env_id):
     """Every buffer of the single env's state fits XLA's sequential limit, so its step
@@ -335,6 +336,7 @@ def _staggered(ours, ref, seed):
     _copy_states(ours, ref, np.ones(N, bool))
 
 
+@pytest.mark.full
 def test_make_vec_is_one_batched_env(short_vec):
     raw = short_vec.unwrapped
     assert isinstance(raw, facade.JaxVectorEnv)
@@ -423,6 +425,7 @@ def test_next_step_autoreset_matches_sync_vector_env():
     ref.close()
 
 
+@pytest.mark.full
 def test_next_step_starts_where_same_step_starts():
     """A fresh start is drawn with the env's own key: NEXT_STEP's new episode starts, one
     step later, where SAME_STEP's does."""
@@ -502,6 +505,7 @@ def test_same_step_autoreset_matches_sync_vector_env():
     ref.close()
 
 
+@pytest.mark.full
 def test_disabled_autoreset_matches_sync_vector_env():
     """DISABLED: no auto-reset; a finished env must be reset through reset_mask before
     the next step."""
@@ -655,6 +659,7 @@ def test_reward_vector_wrappers_see_next_step_rewards():
         assert (np.stack(got["reward"])[SHORT] == 0).all()  # the reset step
 
 
+@pytest.mark.full
 def test_clip_action_vector_wrapper():
     """Out-of-range actions through ClipAction step as their clipped values do; the step
     after the episodes end resets them (reward 0)."""

@@ -81,6 +81,7 @@ def test_quat_to_mat_matches_mujoco():
     np.testing.assert_allclose(quat_to_mat(jnp.asarray(q)), expected.reshape(3, 3), atol=1e-6)
 
 
+@pytest.mark.full
 def test_walker_stands_for_two_seconds(walk):
     env, reset, step = walk
     state = reset(jax.random.key(0))
@@ -116,6 +117,7 @@ def test_walker_observation_and_reward_terms(walk):
     assert abs(float(state2.info["progress"]) - (d0 - d1) / 0.05) < 1e-3
 
 
+@pytest.mark.full
 def test_walker_noise_options_default_off_and_keyed():
     """action_noise / obs_noise: off by default (the noiseless observation), and drawn
     from the hooks' keys (same key, same noise; another key, other noise)."""
@@ -188,6 +190,7 @@ def test_walker_parity_with_mujoco(physics):
     assert err[:, 7:].max() < WALK_JOINT_ATOL
 
 
+@pytest.mark.full
 def test_one_leg_target_is_reachable(leg):
     env, reset, step = leg
     states = jax.vmap(env.reset)(jax.random.split(jax.random.key(4), 512))
@@ -212,6 +215,7 @@ def test_one_leg_target_is_reachable(leg):
     assert np.ptp(targets[:, 2]) > 0.2 and np.ptp(targets[:, 1]) > 0.1
 
 
+@pytest.mark.full
 def test_one_leg_servo_reaches_target(leg):
     env, reset, step = leg
     state = reset(jax.random.key(5))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 PACKAGE = Path(__file__).resolve().parent.parent / "jaxenvs"
 
 
@@ -85,6 +87,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
     return None
 
 
+@pytest.mark.full
 def test_the_graph_sees_every_kind_of_import():
     graph = import_graph()
     assert "jaxenvs.registry" in graph["jaxenvs.compat.gymnasium"]  # from jaxenvs import registry

@@ -50,6 +50,7 @@ def _engines(env_id: str, **overrides):
     return env, other
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("env_id", ["CartpoleBalance-v0", "HexapodWalk-v0"])
 def test_callback_path_matches_native_bit_for_bit(env_id):
     env, callback = _engines(env_id)
@@ -135,6 +136,7 @@ class _ReadsPoses(CartpoleBalance):
         return 5 + 3 + 3 + 2
 
 
+@pytest.mark.full
 def test_a_users_task_reading_poses_and_qacc_agrees_across_engines():
     jaxenvs.register("ReadsPoses-v0", _ReadsPoses, BalanceConfig(), "test task", overwrite=True)
     env = jaxenvs.make("ReadsPoses-v0", physics="c")
@@ -172,6 +174,7 @@ def test_applied_forces_are_honoured(field):
     assert moved["c"] == pytest.approx(moved["mjx"], rel=1e-2)
 
 
+@pytest.mark.full
 def test_a_bad_state_is_caught_on_an_episodes_first_step():
     """MuJoCo resets a state with an infinite velocity and carries on, its clock back at 0:
     at time 0 nothing but its warning shows it. The env is flagged diverged and
@@ -185,6 +188,7 @@ def test_a_bad_state_is_caught_on_an_episodes_first_step():
     assert np.all(np.isfinite(np.asarray(nxt.obs)))  # the diverged env came back reset
 
 
+@pytest.mark.full
 def test_contact_arrays_refuse_to_be_read_naming_the_field():
     env = jaxenvs.make("HexapodWalk-v0", physics="c")
     data = env.reset(jax.random.key(0)).data
@@ -194,6 +198,7 @@ def test_contact_arrays_refuse_to_be_read_naming_the_field():
         jax.jit(lambda d: jnp.sum(d._impl.efc_force))(data)
 
 
+@pytest.mark.full
 def test_forward_fills_derived_fields_like_mjx():
     c = jaxenvs.make("Reacher-v0", physics="c")
     m = jaxenvs.make("Reacher-v0", physics="mjx")
@@ -242,6 +247,7 @@ _CACHED_RUN = textwrap.dedent(
 )
 
 
+@pytest.mark.full
 def test_a_program_compiled_in_one_process_loads_in_another(tmp_path):
     """Nothing process-specific is baked into a program that steps the native engine:
     the second process loads the first one's compiled rollout from the persistent cache
@@ -263,6 +269,7 @@ def test_a_program_compiled_in_one_process_loads_in_another(tmp_path):
         assert int(second[1]) > int(first[1])  # the rollout came from the cache
 
 
+@pytest.mark.full
 def test_native_off_runs_the_callback_and_says_so_in_one_line(tmp_path):
     code = (
         "import jax, jax.numpy as jnp, jaxenvs\n"
@@ -298,6 +305,7 @@ print("SAME", same)
 """
 
 
+@pytest.mark.full
 def test_a_c_batch_spread_over_two_devices_steps_as_on_one():
     """A C batch asked onto two host devices (the engine's calls from both run at once)
     gives the one-device trajectory, bit for bit."""
@@ -310,6 +318,7 @@ def test_a_c_batch_spread_over_two_devices_steps_as_on_one():
     assert "SAME True" in done.stdout
 
 
+@pytest.mark.full
 def test_native_calls_turn_off_only_the_bindings_default_clock():
     """MuJoCo's Python bindings time every step's stages with a default clock (a quarter of
     a small model's step); native calls turn that clock off, and keep one a user set."""

@@ -155,6 +155,7 @@ def parity_run(request):
     return run_case(request.param)
 
 
+@pytest.mark.full
 def test_step_matches_mujoco_c(parity_run):
     case, _, _, qpos, qvel, host_qpos, host_qvel, _ = parity_run
     assert np.abs(host_qpos[-1] - host_qpos[0]).max() > 0.1  # a trajectory, not a rest

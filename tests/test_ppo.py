@@ -164,6 +164,7 @@ def cartpole_run():
     return _cartpole_run(dataclasses.replace(CARTPOLE, total_steps=2 * 4096))
 
 
+@pytest.mark.full
 def test_short_cartpole_run_learns(cartpole_run):
     """The learning signal moves: each update improved its own surrogate objective, the
     policy left the uniform one, and the second chunk's episodes are longer."""
@@ -214,6 +215,7 @@ def test_greedy_policy_acts_in_the_action_space(cartpole_run):
     assert bool(jnp.all((act >= 0) & (act < env.action_size)))
 
 
+@pytest.mark.full
 def test_continuous_randomised_task_chunk_runs():
     env = jaxenvs.make("CartpoleBalance-v0", episode_length=50)
     config = dataclasses.replace(

@@ -43,6 +43,7 @@ def test_clipped_surrogate_takes_the_pessimistic_term_in_every_corner():
     assert float(loss) == pytest.approx(0.15, abs=1e-6)
 
 
+@pytest.mark.full
 def test_clipped_surrogate_gradient_is_zero_where_the_clip_binds():
     grad = jax.grad(losses.policy_loss)(LOG_PROB, OLD_LOG_PROB, ADV, 0.2)
     # d(-mean(r A))/d log_prob = -r A / 4 where unclipped: -0.5/4 and 1.5/4

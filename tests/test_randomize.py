@@ -90,6 +90,7 @@ def _ratios(params, default, name):
     return new[..., nz] / old[nz], new[..., ~nz]
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("env_id", CARTPOLE_IDS)
 def test_cartpole_ranges_respected(env_id):
     env = jaxenvs.make(env_id, mass_scale=(0.5, 0.6), damping_range=(0.2, 0.3), gain_scale=(2, 3))
@@ -180,6 +181,7 @@ def dr(request):
     return env, jax.jit(run)
 
 
+@pytest.mark.full
 def test_same_key_different_params_diverge(dr):
     env, run = dr
     params = jax.vmap(env.sample_params)(jax.random.split(jax.random.key(1), N))
@@ -206,6 +208,7 @@ def reacher_batched():
     return on, off
 
 
+@pytest.mark.full
 def test_batched_randomize_gives_each_env_its_params(reacher_batched):
     on, off = reacher_batched
     s = jax.jit(on.reset)(jax.random.key(0))
@@ -214,6 +217,7 @@ def test_batched_randomize_gives_each_env_its_params(reacher_batched):
     assert jax.jit(off.reset)(jax.random.key(0)).params is None
 
 
+@pytest.mark.full
 def test_params_fixed_in_episode_redrawn_at_reset(reacher_batched):
     on, _ = reacher_batched
     step = jax.jit(on.step)

@@ -58,6 +58,7 @@ def forward_kinematics(qpos):
     return np.stack([x, y], -1)
 
 
+@pytest.mark.full
 def test_fingertip_matches_forward_kinematics(traj):
     _, traj = traj
     qpos = np.asarray(traj.data.qpos, np.float64)
@@ -115,6 +116,7 @@ def test_fifty_steps_no_termination(traj):
     assert not np.asarray(traj.info["diverged"]).any()
 
 
+@pytest.mark.full
 def test_targets_uniform_in_reach_disk(env, vreset):
     s = vreset(jax.random.split(jax.random.key(8), 8192), env.default_params)
     target = np.asarray(s.data.mocap_pos)[:, 0]
@@ -137,6 +139,7 @@ def test_target_radius_param_bounds_targets(env, vreset):
     assert r.max() <= 0.05 + 1e-7 and r.max() > 0.045
 
 
+@pytest.mark.full
 def test_target_resampled_at_every_auto_reset(get_checker):
     # the battery's rollout: 8 envs x 300 random steps of 50-step episodes, 6 resets each
     state0, traj = get_checker("Reacher-v0").rollout()
@@ -150,6 +153,7 @@ def test_target_resampled_at_every_auto_reset(get_checker):
     assert np.all(np.linalg.norm(targets, axis=-1) <= REACH + 1e-6)
 
 
+@pytest.mark.full
 def test_zero_action_keeps_arm_still_from_rest():
     env = jaxenvs.make("Reacher-v0", init_velocity_noise=0.0, init_angle_noise=3.0)
 
@@ -170,6 +174,7 @@ def test_zero_action_keeps_arm_still_from_rest():
     np.testing.assert_allclose(np.asarray(end.obs), np.asarray(start.obs), atol=1e-7)
 
 
+@pytest.mark.full
 def test_jacobian_transpose_controller_reaches_solved_threshold(env):
     """A PD controller on the task-space error (no learning) beats Gymnasium's solved
     return of -3.75 on average and ends near the target: the task is solvable at the

@@ -41,6 +41,7 @@ def test_check_passes_on_the_committed_tree() -> None:
     assert res.returncode == 0, res.stderr
 
 
+@pytest.mark.full
 def test_an_edited_figure_fails_naming_its_table(tree: Path) -> None:
     doc = tree / "RESULTS.md"
     text = doc.read_text()
@@ -54,6 +55,7 @@ def test_an_edited_figure_fails_naming_its_table(tree: Path) -> None:
     assert "'scaling-env'" not in res.stderr  # only the table that differs is named
 
 
+@pytest.mark.full
 def test_an_edited_result_file_fails_naming_its_table(tree: Path) -> None:
     path = tree / "results" / "soak_h100_all_tasks.json"
     rec = json.loads(path.read_text())
@@ -64,6 +66,7 @@ def test_an_edited_result_file_fails_naming_its_table(tree: Path) -> None:
     assert "'soak-h100'" in res.stderr
 
 
+@pytest.mark.full
 def test_rebuilding_restores_the_table(tree: Path) -> None:
     doc = tree / "RESULTS.md"
     committed = doc.read_text()
@@ -112,6 +115,7 @@ def test_every_result_file_follows_the_schema_and_backs_a_table() -> None:
     assert set(recs) == used
 
 
+@pytest.mark.full
 def test_a_marker_no_table_module_defines_is_one_line_naming_it(tree: Path) -> None:
     doc = tree / "RESULTS.md"
     doc.write_text(

@@ -170,6 +170,7 @@ def _read_until(sock, reader, kind, n=1):
     return got
 
 
+@pytest.mark.full
 def test_sim_robot_counts_bad_messages_and_keeps_running(world):
     """Garbage, wrong sizes, NaN, stale and out-of-range commands are counted; valid ones
     are applied and acknowledged; the robot publishes at the control rate throughout."""

@@ -254,6 +254,7 @@ def test_cartpole_readings_name_its_state():
     np.testing.assert_array_equal(robot.state(readings), np.float32([0.5, 1.5, -0.2, 3.0]))
 
 
+@pytest.mark.full
 def test_cartpole_randomisation_stays_in_its_ranges():
     robot = Cartpole()
     base = robot.default_fields(robot.make_sim(0.01, 1))

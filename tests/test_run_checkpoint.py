@@ -81,6 +81,7 @@ def _set(meta: dict[str, Any], path: tuple[str, ...], value: Any) -> dict[str, A
     return meta
 
 
+@pytest.mark.full
 def test_edited_metadata_fails_the_checksum(run_dir, tmp_path):
     edited = tmp_path / "edited.npz"
     _rewrite(run_dir / runner.CHECKPOINT_FILE, edited,
@@ -141,6 +142,7 @@ def test_eval_of_a_damaged_checkpoint_is_one_line(run_dir, tmp_path, capsys, dam
     assert "\n" not in err and "Traceback" not in err
 
 
+@pytest.mark.full
 def test_resume_refuses_a_checkpoint_of_another_config(run_dir, tmp_path, capsys):
     other = tmp_path / "other"
     runner.train(_chain(alpha=0.25), other, quiet=True, max_chunks=1)

@@ -55,6 +55,7 @@ def _chain_file(tmp_path, algo):
     return str(path)
 
 
+@pytest.mark.full
 def test_a_second_run_into_a_directory_in_use_is_refused_at_once(tmp_path, monkeypatch):
     """Run A is inside its first chunk when run B (another algorithm) starts into the same
     directory: B fails before touching it, naming the directory and run A."""
@@ -104,6 +105,7 @@ def _hold_claim(directory):
     return proc
 
 
+@pytest.mark.full
 def test_the_command_line_names_the_directory_and_the_other_run(tmp_path, capsys):
     out = tmp_path / "run"
     holder = _hold_claim(out)
@@ -120,6 +122,7 @@ def test_the_command_line_names_the_directory_and_the_other_run(tmp_path, capsys
     assert not (out / runner.CHECKPOINT_FILE).exists()
 
 
+@pytest.mark.full
 def test_a_killed_runs_claim_and_temporaries_do_not_survive_it(tmp_path):
     """A run stopped after one chunk, then a killed process left its claim file and a
     half-written video: the resume is not blocked and removes the leftover."""

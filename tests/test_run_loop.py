@@ -206,6 +206,7 @@ def test_every_algorithm_rounds_the_same_way():
     assert tab_trainer.num_chunks == ppo_config.num_chunks == 2
 
 
+@pytest.mark.full
 def test_the_run_names_the_steps_it_will_take(tmp_path):
     agent = {
         "number_splits": 7,

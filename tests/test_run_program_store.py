@@ -90,6 +90,7 @@ def test_arguments_of_another_structure_are_refused(tmp_path):
         program.call((jax.random.key(3), jnp.zeros(4)), jnp.float32(0.5))
 
 
+@pytest.mark.full
 def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch):
     # the persistent compile cache stays off (process-wide); only the program store is on,
     # for the physics-free chain task of the test fakes (fast to compile)
@@ -141,6 +142,7 @@ def test_user_tasks_are_not_stored(tmp_path, monkeypatch):
         assert runner.program_store(resolved, env, trainer) is None
 
 
+@pytest.mark.full
 def test_c_engine_programs_are_stored_and_loaded(tmp_path, monkeypatch):
     """Programs that step the native C engine name the model by its digest, so they are
     stored and a second run loads them (the callback path's programs are not stored)."""

@@ -40,6 +40,7 @@ def c_runs(tmp_path_factory):
     return {algo: _train(tmp_path_factory, algo, "c") for algo in ("qlearning", "ppo")}
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("algo", ["qlearning", "ppo"])
 def test_a_c_engine_policy_loads_under_mjx_and_acts_the_same(c_runs, algo):
     _, c_env, c_act = runner.load_policy(c_runs[algo], "c")
@@ -85,6 +86,7 @@ def test_a_resume_under_another_engine_names_the_engine(tmp_path_factory, tmp_pa
         runner.train(runner.load_run_config(run), run, resume=True, quiet=True)
 
 
+@pytest.mark.full
 def test_a_run_that_keeps_only_its_policy_evaluates_and_exports_like_the_full_one(c_runs, tmp_path):
     import shutil
 

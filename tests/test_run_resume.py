@@ -137,6 +137,7 @@ def ppo(request, traces, tmp_path_factory):
     return resolved, out, runner.train(resolved, out, quiet=True)
 
 
+@pytest.mark.full
 def test_ppo_same_seed_and_config_are_bit_identical(ppo, tmp_path):
     resolved, out_a, summary_a = ppo
     summary_b = runner.train(resolved, tmp_path, quiet=True)
@@ -147,6 +148,7 @@ def test_ppo_same_seed_and_config_are_bit_identical(ppo, tmp_path):
     _same_checkpoint(out_a, tmp_path)
 
 
+@pytest.mark.full
 def test_ppo_ctrl_c_then_resume_gives_the_same_results(ppo, tmp_path, monkeypatch):
     resolved, out_a, summary_a = ppo
     real = _interrupt_at(monkeypatch, 2)
@@ -186,6 +188,7 @@ def chain(traces, tmp_path_factory):
     return resolved, out, runner.train(resolved, out, quiet=True)
 
 
+@pytest.mark.full
 @pytest.mark.parametrize("write", [1, 2, 4])
 def test_tabular_resume_after_any_chunk(chain, tmp_path, monkeypatch, write):
     """Ctrl-C after chunk ``write`` is computed leaves chunk ``write - 1`` on disk."""

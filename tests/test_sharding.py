@@ -299,6 +299,7 @@ def test_train_command_rejects_more_devices_than_present(
     assert f"asked for {too_many} devices" in err and "available" in err
 
 
+@pytest.mark.full
 def test_batch_not_divisible_by_devices_is_one_line(tmp_path):
     """Two forced CPU devices, three envs: the key and the flag to change are named."""
     proc = subprocess.run(

@@ -91,6 +91,7 @@ def test_binning_at_the_edges():
     assert disc.num_states == 20
 
 
+@pytest.mark.full
 def test_greedy_breaks_ties_at_random():
     row = jnp.array([1.0, 1.0, 0.0])
     picks = jax.vmap(lambda k: T.greedy_action(row, k))(jax.random.split(jax.random.key(0), 200))
@@ -141,6 +142,7 @@ def test_terminal_vs_truncated_bootstrap(cls, terminate, expected):
     assert metrics[0]["mean_length"] == 1.0
 
 
+@pytest.mark.full
 def test_each_env_counts_its_own_episodes():
     env = OneState(OneStateConfig(episode_length=1))
     cfg = _config(num_envs=3, chunk_steps=7, epsilon_discount=0.9, epsilon_min=0.0)
@@ -150,6 +152,7 @@ def test_each_env_counts_its_own_episodes():
     assert metrics[-1]["env_steps"] == 42
 
 
+@pytest.mark.full
 def test_episodes_per_env_stops_learning():
     env = OneState(OneStateConfig(episode_length=1))
     cfg = _config(num_envs=2, chunk_steps=5, episodes_per_env=3)

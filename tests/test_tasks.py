@@ -63,10 +63,12 @@ def noisy() -> tuple[NoisyBalance, CartpoleBalance, object, object]:
     return env, plain, jax.jit(env.reset), jax.jit(env.step)
 
 
+@pytest.mark.full
 def test_noisy_task_passes_the_battery() -> None:
     check_task(NoisyBalance(_config()), rollout_steps=100)
 
 
+@pytest.mark.full
 def test_noise_is_deterministic_per_key_and_differs_across_keys(noisy) -> None:
     env, plain, reset, step = noisy
     s = reset(jax.random.key(1))
@@ -112,6 +114,7 @@ def test_step_splits_the_key_once_into_distinct_named_subkeys() -> None:
     assert len({k.tobytes() for k in used}) == len(used)  # no key used twice
 
 
+@pytest.mark.full
 def test_battery_names_a_step_that_ignores_the_state_key() -> None:
     checker = TaskChecker(StaleKeyStep(_config()))
     with pytest.raises(TaskCheckError, match=r"^\[keys\] step did not advance state.key"):

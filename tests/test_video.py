@@ -116,6 +116,7 @@ def cartpole_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.full
 def test_eval_says_the_video_failed_and_exits_non_zero(cartpole_run, tmp_path, full_disk, capsys):
     video = tmp_path / "policy.mp4"
     argv = ["eval", str(cartpole_run), "--episodes", "1", "--video", str(video)]

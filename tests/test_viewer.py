@@ -120,6 +120,7 @@ def _run_fake(mode: str, sliders: float | None, steps: int, **kw: Any) -> FakeHa
     return handle
 
 
+@pytest.mark.full
 def test_manual_mode_drives_the_actuator_from_the_sliders() -> None:
     pushed = {s: _run_fake("manual", s, steps=10) for s in (-1.0, 1.0)}
     for s, handle in pushed.items():
@@ -129,6 +130,7 @@ def test_manual_mode_drives_the_actuator_from_the_sliders() -> None:
     assert delta[1] - delta[0] > 0.05
 
 
+@pytest.mark.full
 def test_random_mode_shows_actions_and_resets_at_episode_end() -> None:
     handle = _run_fake("random", None, steps=25, episode_length=10)
     ctrls = np.array(handle.ctrls)
@@ -136,6 +138,7 @@ def test_random_mode_shows_actions_and_resets_at_episode_end() -> None:
     assert handle.data.time == pytest.approx(25 % 10 * 0.05)  # the third episode's clock
 
 
+@pytest.mark.full
 def test_policy_mode_plays_act_fn() -> None:
     def act_fn(obs: jax.Array, key: jax.Array) -> jax.Array:
         return jax.numpy.full((1,), 0.5)
