@@ -1,13 +1,19 @@
-"""Whole-command times of the README's main job, cold (a fresh compile cache) and warm.
+"""Whole-command times of the README's main job, cold and warm, beside SB3 on CartPole-v1.
 
-Runs ``jaxenvs train CartPole-v0 --algo ppo`` (video included, as the README runs it)
-``--runs`` times in a row against one fresh cache directory: the first run is cold, the
-others load what it stored. Then the same with ``--physics c --no-video``, whose second run
-should take at most half the first's time. Each row: the command, the run's index, its
-wall time from process start to exit, the training wall the run reports, its engine and
-eval return.
+Each round runs, interleaved so that the shared machine's load falls on all of them alike:
+``jaxenvs train CartPole-v0 --algo ppo`` (video included, as the README runs it) against a
+fresh compile cache (cold), the same again against that cache (warm), and Stable-Baselines3's
+PPO training Gymnasium's CartPole-v1 in a process of its own until a 20-episode
+deterministic evaluation (checked every ``--sb3-check-every`` steps, inside the timed
+process) returns 500. Every time is the whole process's, from start to exit. The C engine
+without video (cold, warm) closes each round. Rows: one per process; the record's ``extra``
+holds the medians over rounds and the ratios ours / SB3.
 
-    python benchmarks/main_command.py --json main_command_cpu2
+SB3's hyperparameters are RL Baselines3 Zoo's tuned ones for CartPole-v1 (8 envs,
+n_steps 32, batch 256, 20 epochs, gamma 0.98, GAE lambda 0.8, linearly decayed learning
+rate 1e-3 and clip 0.2), on the CPU; it needs ``pip install 'jaxenvs[bench-sb3]'``.
+
+    python benchmarks/main_command.py --rounds 3 --json main_command_cpu2
 """
 
 from __future__ import annotations
@@ -15,11 +21,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import results_io
 
@@ -27,9 +35,12 @@ COMMANDS = (
     ("main", ["train", "CartPole-v0", "--algo", "ppo"]),
     ("c_no_video", ["train", "CartPole-v0", "--algo", "ppo", "--physics", "c", "--no-video"]),
 )
+SB3_COMMAND = "SB3 PPO on Gymnasium CartPole-v1 until a 20-episode greedy eval returns 500"
+EVAL_EPISODES = 20
+THRESHOLD = 500.0
 
 
-def _run(args: list[str], out: Path, cache: str) -> dict:
+def _run(args: list[str], out: Path, cache: str) -> dict[str, Any]:
     env = {**os.environ, "JAXENVS_CACHE_DIR": cache}
     start = time.perf_counter()
     subprocess.run(
@@ -49,23 +60,124 @@ def _run(args: list[str], out: Path, cache: str) -> dict:
     }
 
 
+def sb3_job(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
+    """SB3's PPO on CartPole-v1 until solved (this process's side of the SB3 row)."""
+    import gymnasium
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    class Solved(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.eval_env = gymnasium.make("CartPole-v1")
+            self.result: dict[str, Any] = {"solved": False, "eval_mean_return": None}
+            self.next_check = check_every
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps < self.next_check:
+                return True
+            self.next_check += check_every
+            mean, _ = evaluate_policy(
+                self.model, self.eval_env, n_eval_episodes=EVAL_EPISODES, deterministic=True
+            )
+            self.result = {"solved": bool(mean >= THRESHOLD), "eval_mean_return": float(mean)}
+            self.result["env_steps"] = self.num_timesteps
+            return mean < THRESHOLD
+
+    venv = make_vec_env("CartPole-v1", n_envs=8, seed=seed)
+    model = PPO(
+        "MlpPolicy",
+        venv,
+        n_steps=32,
+        batch_size=256,
+        gae_lambda=0.8,
+        gamma=0.98,
+        n_epochs=20,
+        ent_coef=0.0,
+        learning_rate=lambda f: 1e-3 * f,
+        clip_range=lambda f: 0.2 * f,
+        seed=seed,
+        device="cpu",
+        verbose=0,
+    )
+    callback = Solved()
+    model.learn(total_timesteps=max_steps, callback=callback)
+    return callback.result
+
+
+def _run_sb3(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
+    script = Path(__file__).resolve()
+    start = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, str(script), "--sb3-job", str(seed), str(max_steps), str(check_every)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
+    wall = time.perf_counter() - start
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    return {"whole_command_s": round(wall, 2), **result}
+
+
+def _medians(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Median whole-process seconds of each kind of row, and ours / SB3."""
+    groups: dict[str, list[float]] = {}
+    for r in rows:
+        groups.setdefault(f"{r['which']}_{r['run']}", []).append(r["whole_command_s"])
+    med = {k: round(statistics.median(v), 2) for k, v in groups.items()}
+    sb3 = med.get("sb3_0")
+    ratios = {}
+    if sb3:
+        ratios = {f"{k}_over_sb3": round(v / sb3, 3) for k, v in med.items() if k != "sb3_0"}
+    return {"median_whole_command_s": med, "ratios": ratios}
+
+
+def _load() -> str:
+    one, five, fifteen = os.getloadavg()
+    return f"{one:.2f} {five:.2f} {fifteen:.2f}"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--runs", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--sb3-max-steps", type=int, default=300_000)
+    parser.add_argument("--sb3-check-every", type=int, default=10_000)
+    parser.add_argument("--sb3-job", nargs=3, type=int, help=argparse.SUPPRESS)
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
-    rows = []
-    for name, command in COMMANDS:
-        with tempfile.TemporaryDirectory() as tmp:
-            cache = str(Path(tmp) / "cache")
-            for i in range(args.runs):
-                row = _run(command, Path(tmp) / f"run{i}", cache)
-                row = {"command": "jaxenvs " + " ".join(command), "which": name, "run": i, **row}
-                rows.append(row)
-                print(row, flush=True)
+    if args.sb3_job:
+        print(json.dumps(sb3_job(*args.sb3_job)), flush=True)
+        return
+    rows, loads = [], [_load()]
+    for k in range(args.rounds):
+        for name, command in COMMANDS:
+            with tempfile.TemporaryDirectory() as tmp:
+                cache = str(Path(tmp) / "cache")
+                for i in range(2):
+                    row = _run(command, Path(tmp) / f"run{i}", cache)
+                    head = {"command": "jaxenvs " + " ".join(command), "which": name, "run": i}
+                    rows.append({**head, **row, "round": k})
+                    print(rows[-1], flush=True)
+            if name == "main":
+                row = _run_sb3(k, args.sb3_max_steps, args.sb3_check_every)
+                rows.append({"command": SB3_COMMAND, "which": "sb3", "run": 0, **row, "round": k})
+                print(rows[-1], flush=True)
+        loads.append(_load())
+    extra = _medians(rows)
+    print(json.dumps(extra), flush=True)
     if args.json:
-        title = "The README's main command and a C-engine PPO run, cold then warm"
-        results_io.write(args.json, results_io.record(args.json, title, rows))
+        title = "The README's main command cold and warm, beside SB3 on CartPole-v1"
+        notes = (
+            f"{args.rounds} interleaved rounds on a shared 2-core machine; load average "
+            f"(1/5/15 min) before and after each round: {'; '.join(loads)}. SB3: RL "
+            "Baselines3 Zoo's CartPole-v1 PPO hyperparameters, seed = round, greedy "
+            f"20-episode eval every {args.sb3_check_every} steps inside the timed process."
+        )
+        rec = results_io.record(args.json, title, rows, notes=notes, extra=extra)
+        results_io.write(args.json, rec)
 
 
 if __name__ == "__main__":

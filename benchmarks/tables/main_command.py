@@ -1,4 +1,4 @@
-"""The main command: ``jaxenvs train`` as the README gives it, cold and warm."""
+"""The main command: ``jaxenvs train`` as the README gives it, cold and warm, beside SB3."""
 
 from __future__ import annotations
 
@@ -9,18 +9,43 @@ def main_command(recs: list[Rec]) -> Cells:
     (rec,) = recs
 
     def cells(r: Row) -> list[str]:
+        sb3 = r["which"] == "sb3"
+        ret = r["eval_mean_return"]
         return [
-            f"`{r['command']}`",
-            "cold" if r["run"] == 0 else f"warm ({r['run']})",
+            f"`{r['command']}`" if not sb3 else r["command"],
+            str(r.get("round", 0)),
+            "-" if sb3 else "cold" if r["run"] == 0 else "warm",
             secs(r["whole_command_s"]),
-            secs(r["train_wall_s"]),
-            str(r["physics"]),
-            f"{r['eval_mean_return']:.1f}",
-            "yes" if r["video"] else "no",
+            "-" if sb3 else secs(r["train_wall_s"]),
+            "torch" if sb3 else str(r["physics"]),
+            "-" if ret is None else f"{ret:.1f}",
+            "no" if sb3 else "yes" if r["video"] else "no",
         ]
 
-    head = ["command", "run", "whole command", "train wall", "engine", "eval return", "video"]
-    return each_row(head, rec["rows"], cells)
+    head = ["command", "round", "run", "whole process", "train wall", "engine", "eval return"]
+    return each_row([*head, "video"], rec["rows"], cells)
 
 
-TABLES = {"main-command-cpu2": Table(("main_command_cpu2",), main_command)}
+def main_command_ratios(recs: list[Rec]) -> Cells:
+    """Median whole-process seconds over the rounds, and each as a multiple of SB3's."""
+    (rec,) = recs
+    med = rec["extra"]["median_whole_command_s"]
+    sb3 = med["sb3_0"]
+    names = {
+        "main_0": ("`jaxenvs train CartPole-v0 --algo ppo`, cold", "<= 0.25x"),
+        "main_1": ("`jaxenvs train CartPole-v0 --algo ppo`, warm", "<= 0.12x"),
+        "c_no_video_0": ("the same, `--physics c --no-video`, cold", ""),
+        "c_no_video_1": ("the same, `--physics c --no-video`, warm", ""),
+        "sb3_0": ("SB3 PPO, CartPole-v1 to a greedy 500", ""),
+    }
+    rows = [["run", "median whole process", "/ SB3", "target"]]
+    for key, (what, bar) in names.items():
+        if key in med:
+            rows.append([what, secs(med[key]), f"{med[key] / sb3:.2f}x", bar])
+    return rows
+
+
+TABLES = {
+    "main-command-cpu2": Table(("main_command_cpu2",), main_command),
+    "main-command-ratios-cpu2": Table(("main_command_cpu2",), main_command_ratios),
+}
