@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import results_io
+from sb3_zoo import zoo_cartpole_ppo
 
 COMMANDS = (
     ("main", ["train", "CartPole-v0", "--algo", "ppo"]),
@@ -63,9 +64,7 @@ def _run(args: list[str], out: Path, cache: str) -> dict[str, Any]:
 def sb3_job(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
     """SB3's PPO on CartPole-v1 until solved (this process's side of the SB3 row)."""
     import gymnasium
-    from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.evaluation import evaluate_policy
 
     class Solved(BaseCallback):
@@ -86,22 +85,7 @@ def sb3_job(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
             self.result["env_steps"] = self.num_timesteps
             return mean < THRESHOLD
 
-    venv = make_vec_env("CartPole-v1", n_envs=8, seed=seed)
-    model = PPO(
-        "MlpPolicy",
-        venv,
-        n_steps=32,
-        batch_size=256,
-        gae_lambda=0.8,
-        gamma=0.98,
-        n_epochs=20,
-        ent_coef=0.0,
-        learning_rate=lambda f: 1e-3 * f,
-        clip_range=lambda f: 0.2 * f,
-        seed=seed,
-        device="cpu",
-        verbose=0,
-    )
+    model = zoo_cartpole_ppo(seed)
     callback = Solved()
     model.learn(total_timesteps=max_steps, callback=callback)
     return callback.result

@@ -23,6 +23,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import results_io
+from sb3_zoo import zoo_cartpole_ppo
 
 import jaxenvs
 from jaxenvs.agents import base, ppo
@@ -99,9 +100,7 @@ def run_ours(config: ppo.PPOConfig, seed: int) -> dict[str, Any]:
 def run_sb3(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
     try:
         import gymnasium
-        from stable_baselines3 import PPO
         from stable_baselines3.common.callbacks import BaseCallback
-        from stable_baselines3.common.env_util import make_vec_env
         from stable_baselines3.common.evaluation import evaluate_policy
     except ImportError as err:
         return {"skipped": True, "reason": f"not installed: {err}"}
@@ -135,24 +134,8 @@ def run_sb3(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
                 return False
             return True
 
-    # RL Baselines3 Zoo's tuned CartPole-v1 PPO hyperparameters.
     t0 = time.perf_counter()
-    venv = make_vec_env("CartPole-v1", n_envs=8, seed=seed)
-    model = PPO(
-        "MlpPolicy",
-        venv,
-        n_steps=32,
-        batch_size=256,
-        gae_lambda=0.8,
-        gamma=0.98,
-        n_epochs=20,
-        ent_coef=0.0,
-        learning_rate=lambda f: 1e-3 * f,
-        clip_range=lambda f: 0.2 * f,
-        seed=seed,
-        device="cpu",
-        verbose=0,
-    )
+    model = zoo_cartpole_ppo(seed)
     cb = Solved()
     model.learn(total_timesteps=max_steps, callback=cb)
     wall = time.perf_counter() - t0 - cb.eval_s
