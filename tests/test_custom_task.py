@@ -119,6 +119,7 @@ def test_trained_policy_plays(run_dir: Path) -> None:
     assert action.shape == (1,) and bool(jnp.all(jnp.abs(action) <= 1))
 
 
+@pytest.mark.full  # needs the tutorial's trained run (run_dir)
 def test_view_policy_must_match_the_id(
     run_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

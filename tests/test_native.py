@@ -165,8 +165,7 @@ def test_applied_forces_are_honoured(field):
                 push = data.xfrc_applied.at[cart, 0].set(50.0)
             data = data.replace(**{field: push})
             model = sim.model_with(env.default_params.model)
-            for _ in range(25):
-                data = sim.step(model, data, jnp.zeros(1))
+            data = jax.lax.fori_loop(0, 25, lambda _, d: sim.step(model, d, jnp.zeros(1)), data)
             return data.qpos[0] - env.reset(key).data.qpos[0]
 
         moved[physics] = float(jax.jit(roll)(jax.random.key(0)))

@@ -206,9 +206,10 @@ def test_shipped_cartpole_config_solves_cartpole(tmp_path):
     assert summary["eval_mean_return"] >= 475.0, summary
 
 
-def test_greedy_policy_acts_in_the_action_space(cartpole_run):
-    env, trainer, final, _ = cartpole_run
-    params = jax.tree.map(lambda x: x[0], trainer.policy_params(final))
+def test_greedy_policy_acts_in_the_action_space():
+    env = jaxenvs.make("CartPole-v0")
+    trainer = ppo.make_trainer(env, dataclasses.replace(CARTPOLE, total_steps=4096))
+    params = trainer.policy_params(trainer.init(jax.random.key(0)))
     obs = jax.vmap(env.reset)(jax.random.split(jax.random.key(3), 5)).obs
     act = jax.vmap(trainer.act, in_axes=(None, 0, None))(params, obs, jax.random.key(0))
     assert act.shape == (5,) and act.dtype == jnp.int32

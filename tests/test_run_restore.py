@@ -37,14 +37,22 @@ def _train(tmp_path_factory, algo, physics):
 
 @pytest.fixture(scope="module")
 def c_runs(tmp_path_factory):
-    return {algo: _train(tmp_path_factory, algo, "c") for algo in ("qlearning", "ppo")}
+    """``c_runs(algo)``: a tiny CartPole run of ``algo`` on the C engine, trained on first use."""
+    runs = {}
+
+    def get(algo):
+        if algo not in runs:
+            runs[algo] = _train(tmp_path_factory, algo, "c")
+        return runs[algo]
+
+    return get
 
 
 @pytest.mark.full
 @pytest.mark.parametrize("algo", ["qlearning", "ppo"])
 def test_a_c_engine_policy_loads_under_mjx_and_acts_the_same(c_runs, algo):
-    _, c_env, c_act = runner.load_policy(c_runs[algo], "c")
-    _, mjx_env, mjx_act = runner.load_policy(c_runs[algo], "mjx")
+    _, c_env, c_act = runner.load_policy(c_runs(algo), "c")
+    _, mjx_env, mjx_act = runner.load_policy(c_runs(algo), "mjx")
     assert (c_env.physics, mjx_env.physics) == ("c", "mjx")
     obs = jax.random.normal(jax.random.key(1), (32, c_env.observation_size))
     keys = jax.random.split(jax.random.key(2), 32)
@@ -54,8 +62,8 @@ def test_a_c_engine_policy_loads_under_mjx_and_acts_the_same(c_runs, algo):
 
 
 def test_restore_policy_reads_the_parameters_under_the_runs_engine(c_runs):
-    resolved, env, trainer, params = runner.restore_policy(c_runs["qlearning"], "mjx")
-    _, _, own_trainer, state = runner.restore(c_runs["qlearning"])
+    resolved, env, trainer, params = runner.restore_policy(c_runs("qlearning"), "mjx")
+    _, _, own_trainer, state = runner.restore(c_runs("qlearning"))
     assert env.physics == "mjx" and resolved.env.physics == "mjx"
     np.testing.assert_array_equal(np.asarray(params), np.asarray(state.q))
 
@@ -92,7 +100,7 @@ def test_a_run_that_keeps_only_its_policy_evaluates_and_exports_like_the_full_on
 
     from jaxenvs.deploy import export
 
-    full = c_runs["ppo"]
+    full = c_runs("ppo")
     slim = tmp_path / "slim"
     slim.mkdir()
     for name in (runner.CONFIG_FILE, runner.SUMMARY_FILE):
