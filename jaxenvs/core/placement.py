@@ -9,9 +9,10 @@ Three decisions, all here:
 * **The devices a batch is spread over.** A batch of ``num_envs`` envs is spread over
   ``n`` devices by splitting its leading (env) axis over a 1-D mesh whose axis is
   :data:`ENV_AXIS`; ``num_envs`` must then be a multiple of ``n``. :func:`batch_devices`
-  picks ``n``: by default every local device that the batch divides over, one under the
-  C engine (its own threads spread the batch). :class:`jaxenvs.core.BatchedEnv` keeps its
-  batch on :func:`local_mesh` ``(n)`` through :func:`spread`; the runner spreads its
+  picks ``n``: by default every local device that the batch divides over, under MJX and
+  under the C engine alike (each device's engine call steps its slice with its share of
+  the engine's threads: :mod:`jaxenvs.physics.cengine`). :class:`jaxenvs.core.BatchedEnv`
+  keeps its batch on :func:`local_mesh` ``(n)`` through :func:`spread`; the runner spreads its
   training state over the same count (:mod:`jaxenvs.run.programs`).
 * **Placing it yourself.** ``devices=1`` (``BatchedEnv.on_one_device()``) keeps a batch
   unspread, for callers that lay it out with their own shardings
@@ -126,13 +127,13 @@ def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
 
     ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
     host devices or GPUs), or as many of them as ``num_envs`` divides over evenly, with a
-    warning when that is fewer; under the C engine one (its own threads spread the batch).
-    An explicit count must divide ``num_envs`` and exist, or ``ValueError`` names the
-    nearest valid sizes.
+    warning when that is fewer. The C engine's batches spread the same way (``physics``
+    is accepted for callers that name it, and changes nothing). An explicit count must
+    divide ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.
     """
     available = jax.local_device_count()
     if devices is None:
-        if physics == "c" or available == 1:
+        if available == 1:
             return 1
         n = divisible_devices(num_envs, available)
         if n < available and num_envs >= available:
@@ -162,9 +163,9 @@ def spread(mesh: Mesh | None, fn: Callable[..., Any], *args: Any) -> Any:
 
     One program over the mesh, not a ``shard_map``: the compiler partitions it and adds
     the one cross-device reduction (the auto-reset's ``any(done)``), so every device takes
-    the same auto-reset decision and every env's arithmetic is as on one device. Under
-    the C engine XLA does not partition the engine's call (each device would step the
-    whole batch), which is why :func:`batch_devices` keeps a C batch on one device.
+    the same auto-reset decision and every env's arithmetic is as on one device. The C
+    engine's call is partitioned along the env axis too (a ``custom_partitioning`` op,
+    :mod:`jaxenvs.physics.cengine`): each device steps its own slice.
     """
     if mesh is None:
         return fn(*args)

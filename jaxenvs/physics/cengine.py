@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import threading
 import warnings
 from collections.abc import Mapping, Sequence
@@ -55,6 +56,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from jax.custom_batching import custom_vmap
+from jax.experimental.custom_partitioning import custom_partitioning
 from mujoco import mjx
 
 from jaxenvs.physics import native
@@ -328,6 +331,85 @@ class CEngine:
         out = self._call(fields, data, 0)
         return out.replace(**{n: getattr(data, n) for n in ADVANCED})
 
+    @functools.lru_cache(maxsize=64)  # noqa: B019 - one engine per Sim, kept for its life
+    def _stepper(self, substeps: int, names: tuple[str, ...], dtypes: tuple[Any, ...]) -> Any:
+        """The engine's call as a function of ``(inputs..., params...)`` (each with the same
+        leading batch axes), batched by ``vmap`` and partitioned along those axes.
+
+        Under ``vmap`` every batch axis becomes a leading axis of one call (the rule
+        broadcasts unbatched operands, as ``vmap_method="broadcast_all"`` does). A call
+        with batch axes is a :func:`jax.experimental.custom_partitioning` op: when its
+        operands are split along those axes over several devices, each device steps its
+        own slice with ``threads // shards`` threads, and per-env dims stay whole. On the
+        callback path the call is not partitioned: it sees the whole batch.
+        """
+        lay = self.layout
+        env_in = [lay.shapes[n] for n in lay.inputs] + [self.field_shape(n) for n in names]
+        env_out = [lay.shapes[n] for n, _ in lay.outputs]
+        qpos = lay.inputs.index("qpos")
+
+        def raw(arrays: Sequence[jax.Array], threads: int) -> list[jax.Array]:
+            lead = arrays[qpos].shape[:-1]
+            shapes = [
+                jax.ShapeDtypeStruct((*lead, *shape), dt)
+                for shape, dt in zip(env_out, dtypes, strict=True)
+            ]
+            return self._raw(substeps, names, threads, arrays, shapes)
+
+        def sharded(arrays: Sequence[jax.Array]) -> list[jax.Array]:
+            k = arrays[qpos].ndim - 1
+            # unpartitioned: no batch axes; the callback path (a Python callback lowered
+            # inside a partitioned op loses its registration, so its call sees the whole
+            # batch); GSPMD (the rule below is Shardy's)
+            shardy = getattr(jax.config, "jax_use_shardy_partitioner", True)
+            if k == 0 or self._callback is not None or not shardy:
+                return raw(arrays, self.threads)
+            return _partitioned(raw, self.threads, k, env_in, env_out, qpos)(*arrays)
+
+        @custom_vmap
+        def run(arrays: tuple[jax.Array, ...]) -> list[jax.Array]:
+            return sharded(arrays)
+
+        @run.def_vmap
+        def _rule(
+            axis_size: int, in_batched: Any, arrays: tuple[jax.Array, ...]
+        ) -> tuple[list[jax.Array], list[bool]]:
+            batched = tuple(
+                a if b else jnp.broadcast_to(a, (axis_size, *a.shape))
+                for a, b in zip(arrays, in_batched[0], strict=True)
+            )
+            outs = run(batched)
+            return outs, [True] * len(outs)
+
+        return run
+
+    def _raw(
+        self,
+        substeps: int,
+        names: tuple[str, ...],
+        threads: int,
+        arrays: Sequence[jax.Array],
+        shapes: Sequence[jax.ShapeDtypeStruct],
+    ) -> list[jax.Array]:
+        """One call of the engine over every env of ``arrays`` with ``threads`` threads."""
+        lay = self.layout
+        if self._callback is None:
+            call = jax.ffi.ffi_call(native.TARGET, shapes, vmap_method="broadcast_all")
+            return list(
+                call(
+                    *arrays,
+                    model=self.key,
+                    substeps=np.int64(substeps),
+                    threads=np.int64(threads),
+                    serial_work=np.int64(SERIAL_WORK),
+                    inputs=",".join(lay.inputs),
+                    params=",".join(names),
+                    outputs=",".join(n for n, _ in lay.outputs),
+                )
+            )
+        host = functools.partial(self._callback, substeps, names, threads)
+        return list(jax.pure_callback(host, shapes, *arrays, vmap_method="broadcast_all"))
+
     def _call(self, fields: Mapping[str, jax.Array], data: mjx.Data, substeps: int) -> mjx.Data:
         lay = self.layout
         dtype = data.qpos.dtype
@@ -345,26 +427,59 @@ class CEngine:
         args = [a if a.dtype == jnp.bool_ else a.astype(dtype) for a in args]
         impl = data._impl
         leaves = [jnp.asarray(getattr(impl if in_impl else data, n)) for n, in_impl in lay.outputs]
-        shapes = [jax.ShapeDtypeStruct(leaf.shape, leaf.dtype) for leaf in leaves]
-        if self._callback is None:
-            call = jax.ffi.ffi_call(native.TARGET, shapes, vmap_method="broadcast_all")
-            results = call(
-                *args,
-                *params,
-                model=self.key,
-                substeps=np.int64(substeps),
-                threads=np.int64(self.threads),
-                serial_work=np.int64(SERIAL_WORK),
-                inputs=",".join(lay.inputs),
-                params=",".join(names),
-                outputs=",".join(n for n, _ in lay.outputs),
-            )
-        else:
-            host = functools.partial(self._callback, substeps, names)
-            results = jax.pure_callback(host, shapes, *args, *params, vmap_method="broadcast_all")
+        dtypes = tuple(jnp.dtype(leaf.dtype) for leaf in leaves)
+        results = self._stepper(substeps, names, dtypes)((*args, *params))
         top = {n: r for (n, in_impl), r in zip(lay.outputs, results, strict=True) if not in_impl}
         low = {n: r for (n, in_impl), r in zip(lay.outputs, results, strict=True) if in_impl}
         return data.replace(_impl=impl.replace(**low), **top)
+
+
+def _partitioned(
+    raw: Any,
+    threads: int,
+    k: int,
+    env_in: Sequence[tuple[int, ...]],
+    env_out: Sequence[tuple[int, ...]],
+    qpos: int,
+) -> custom_partitioning:
+    """``raw(arrays, threads)`` as an op the SPMD partitioner splits along the ``k``
+    leading (batch) axes that every operand and result share.
+
+    Its Shardy rule gives the batch axes one factor each, common to every operand and
+    result, and each per-env axis a factor of its own that must stay whole. Each device
+    then calls ``raw`` on its slice with ``threads // shards`` threads (at least one), so
+    the devices' calls together use about the engine's threads, not that many each.
+    """
+    batch = [f"b{i}" for i in range(k)]
+    whole: list[str] = []
+
+    def operand(prefix: str, shape: tuple[int, ...]) -> str:
+        own = [f"{prefix}d{j}" for j in range(len(shape))]
+        whole.extend(own)
+        return " ".join([*batch, *own])
+
+    rule = (
+        ", ".join(operand(f"i{i}", s) for i, s in enumerate(env_in))
+        + " -> "
+        + ", ".join(operand(f"o{i}", s) for i, s in enumerate(env_out))
+    )
+
+    def partition(mesh: Any, arg_shapes: Any, result_shape: Any) -> Any:
+        q = arg_shapes[qpos]
+        local = math.prod(q.sharding.shard_shape(q.shape)[:k])
+        shards = max(1, math.prod(q.shape[:k]) // max(1, local))
+        per_shard = max(1, threads // shards)
+
+        def lower(*arrays: jax.Array) -> list[jax.Array]:
+            return raw(arrays, per_shard)
+
+        arg_shardings = tuple(a.sharding for a in arg_shapes)
+        result_shardings = [r.sharding for r in result_shape]
+        return mesh, lower, result_shardings, arg_shardings
+
+    op = custom_partitioning(lambda *arrays: raw(arrays, threads))
+    op.def_partition(partition=partition, sharding_rule=rule, need_replication_factors=tuple(whole))
+    return op
 
 
 class _Callback:
@@ -390,11 +505,15 @@ class _Callback:
             self._batches[key] = (batch.Batch(self.model, nsim, threads, persistent=True), set())
         return self._batches[key]
 
-    def __call__(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
+    def __call__(
+        self, substeps: int, names: Sequence[str], threads: int, *arrays: Any
+    ) -> list[np.ndarray]:
         with self._lock:
-            return self._step(substeps, names, *arrays)
+            return self._step(substeps, names, threads, *arrays)
 
-    def _step(self, substeps: int, names: Sequence[str], *arrays: Any) -> list[np.ndarray]:
+    def _step(
+        self, substeps: int, names: Sequence[str], threads: int, *arrays: Any
+    ) -> list[np.ndarray]:
         from mujoco import batch as batch_module
 
         m, lay = self.model, self.layout
@@ -403,8 +522,8 @@ class _Callback:
         qpos = ins[lay.inputs.index("qpos")]
         lead = qpos.shape[: qpos.ndim - 1]
         nsim = int(np.prod(lead, dtype=np.int64))
-        serial = self.threads == 1 or nsim * max(substeps, 1) * max(m.nv, 1) < SERIAL_WORK
-        b, expanded = self._batch(nsim, 1 if serial else self.threads)
+        serial = threads == 1 or nsim * max(substeps, 1) * max(m.nv, 1) < SERIAL_WORK
+        b, expanded = self._batch(nsim, 1 if serial else threads)
         for name, value in zip(lay.inputs, ins, strict=True):
             view = b.bind(name)
             view[...] = value.reshape(view.shape)

@@ -35,8 +35,8 @@ def run_mesh(num_envs: int, physics: str, devices: int | None = None) -> Mesh:
     """The mesh a run of ``num_envs`` envs stepped by ``physics`` trains over.
 
     ``devices=None`` in a single process: the local devices
-    :func:`jaxenvs.core.placement.batch_devices` picks (all that ``num_envs`` divides over; one
-    under the C engine, whose threads spread the batch). Several processes: every host's
+    :func:`jaxenvs.core.placement.batch_devices` picks (all that ``num_envs`` divides over, under
+    either engine). Several processes: every host's
     devices. A count: the first ``devices`` devices.
     """
     if devices is None and jax.process_count() == 1:

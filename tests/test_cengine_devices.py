@@ -1,0 +1,118 @@
+"""The C engine over several CPU host devices: each device steps its own slice of the batch.
+
+The CPU's device count is fixed when JAX starts, so the checks run in a subprocess with 2
+forced host devices (on the native engine and on the callback path); it prints JSON and
+writes arrays, compared here with the same batch on one device.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+_SCRIPT = textwrap.dedent(
+    """
+    import json, re, sys
+    import jax, numpy as np
+    import jaxenvs
+    from jaxenvs.actions import random_actions
+
+    out, task, num_envs, steps = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+    res, arrays = {"devices": jax.local_device_count()}, {}
+    for n in (None, 1):
+        benv = jaxenvs.make(task, num_envs=num_envs, physics="c", devices=n)
+
+        def run(key, benv=benv):
+            def body(s, k):
+                s = benv.step(s, random_actions(benv.env, k, (benv.num_envs,)))
+                return s, (s.obs, s.reward, s.done)
+            return jax.lax.scan(body, benv.reset(key), jax.random.split(key, steps))
+
+        fn = jax.jit(run)
+        text = fn.lower(jax.random.key(3)).compile().as_text()
+        state, traj = fn(jax.random.key(3))
+        tag = "spread" if n is None else "one"
+        res[f"devices_{tag}"] = benv.devices
+        res[f"threads_{tag}"] = benv.env.sim.engine.threads
+        res[f"shards_{tag}"] = len(state.obs.sharding.device_set)
+        # every engine call of the compiled program: its qpos-shaped result and threads
+        res[f"calls_{tag}"] = [
+            line for line in text.splitlines()
+            if re.search(r"custom-call.*(jaxenvs|xla_ffi_python_cpu_callback|callback)", line)
+        ]
+        for i, x in enumerate(jax.tree.leaves((state.data, traj))):
+            arrays[f"{tag}_{i}"] = np.asarray(x)
+    np.savez(out + ".npz", **arrays)
+    with open(out + ".json", "w") as f:
+        json.dump(res, f)
+    """
+)
+
+
+def _run(tmp: Path, task: str, num_envs: int, steps: int, native: bool) -> tuple[dict, dict]:
+    out = tmp / "res"
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    env.pop("JAX_NUM_CPU_DEVICES", None)
+    if not native:
+        env["JAXENVS_NATIVE"] = "0"
+    proc = subprocess.run(
+        [sys.executable, "-c", _SCRIPT, str(out), task, str(num_envs), str(steps)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(Path(f"{out}.json").read_text()), dict(np.load(f"{out}.npz"))
+
+
+def _check_bit_identical(arrays: dict) -> None:
+    one = sorted(k for k in arrays if k.startswith("one_"))
+    assert one and len(one) == sum(k.startswith("spread_") for k in arrays)
+    for key in one:
+        a, b = arrays[key], arrays["spread_" + key[4:]]
+        assert a.shape == b.shape and a.dtype == b.dtype, key
+        np.testing.assert_array_equal(b, a, err_msg=key)
+
+
+@pytest.mark.parametrize("native", [True, False], ids=["native", "callback"])
+def test_c_batch_over_two_devices_is_bit_identical_and_split(tmp_path, native):
+    """8 CartPole envs under C spread over 2 host devices by default: the same states as
+    on one device, bit for bit, through auto-resets. Native: each device's engine call
+    sees 4 envs (not the whole batch) and half of the engine's threads."""
+    res, arrays = _run(tmp_path, "CartPole-v0", 8, 24, native)
+    assert res["devices"] == 2
+    assert (res["devices_spread"], res["shards_spread"]) == (2, 2)
+    assert (res["devices_one"], res["shards_one"]) == (1, 1)
+    done = [v for k, v in arrays.items() if k.startswith("one_")][-1]
+    assert done.dtype == bool and done.any()  # episodes ended: the auto-reset ran
+    _check_bit_identical(arrays)
+    # the compiled engine calls: per device 4 envs on the spread layout, 8 on one device;
+    # the callback path is not partitioned (one device steps the whole batch)
+    nq = 2  # CartPole's qpos
+    spread, one = res["calls_spread"], res["calls_one"]
+    assert spread and one
+    per_device = 4 if native else 8
+    assert all(f"[{per_device},{nq}]" in c for c in spread), spread[0][:300]
+    assert not any(f"[{12 - per_device},{nq}]" in c for c in spread), spread[0][:300]
+    assert all(f"[8,{nq}]" in c for c in one), one[0][:300]
+    if native:  # each device's call gets its share of the pool
+        threads = res["threads_spread"]
+        share = max(1, threads // 2)
+        assert all(re.search(rf"threads = {share} ", c) for c in spread), spread[0][-400:]
+        assert all(re.search(rf"threads = {threads} ", c) for c in one), one[0][-400:]
+
+
+def test_walker_c_over_two_devices_matches_one(tmp_path):
+    """The hexapod walker (contacts, several bodies) under C on 2 devices: bit-identical."""
+    res, arrays = _run(tmp_path, "HexapodWalk-v0", 4, 4, True)
+    assert (res["devices_spread"], res["shards_spread"]) == (2, 2)
+    _check_bit_identical(arrays)
