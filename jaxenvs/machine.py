@@ -5,9 +5,10 @@ Two mechanisms use the CPU's cores, and both read this module:
 * **MJX on a CPU** runs one XLA program per host device, and one XLA CPU device keeps
   about two cores busy whatever the machine has (benchmarks/RESULTS.md). jaxenvs therefore
   asks XLA for ``cores // 2`` host devices (at least 1) and spreads env batches over them
-  (:mod:`jaxenvs.core.placement`). On a 2-core machine that is one device.
+  (:mod:`jaxenvs.core.placement`), under either engine. On a 2-core machine that is one device.
 * **MuJoCo's C engine** (``physics="c"``, :mod:`jaxenvs.physics.cengine`) steps a batch with a pool
-  of ``cores`` threads.
+  of ``cores`` threads; a batch spread over the host devices gives each device's call its
+  share, ``cores // devices``.
 
 ``cores`` defaults to the cores this process may run on (``os.sched_getaffinity``).
 :func:`use_cores` changes it; the command line calls it with ``--threads`` before JAX

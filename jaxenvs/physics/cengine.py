@@ -15,6 +15,12 @@ persistent cache) when it was built and loads; otherwise a ``jax.pure_callback``
 ``mujoco.batch.Batch``, with the same outputs (tested) at a higher cost per call.
 :func:`path` says which one runs and why.
 
+**Devices.** The call is partitioned along the batch (env) axes
+(:func:`jax.experimental.custom_partitioning`): when a batch's state is split over several
+host devices (:mod:`jaxenvs.core.placement`), each device steps its own slice with
+``threads // devices`` threads (at least one), bit for bit as on one device. The callback
+path is not partitioned (its call sees the whole batch).
+
 **Fields.** A step reads the state MJX's step reads (:data:`INPUTS`: ``time``, ``qpos``,
 ``qvel``, ``act``, ``qacc_warmstart``, ``ctrl``, applied forces, ``eq_active``, mocap poses,
 ``userdata``) and writes the state it advances (:data:`ADVANCED`) and every derived field
