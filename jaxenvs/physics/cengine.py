@@ -19,7 +19,9 @@ persistent cache) when it was built and loads; otherwise a ``jax.pure_callback``
 (:func:`jax.experimental.custom_partitioning`): when a batch's state is split over several
 host devices (:mod:`jaxenvs.core.placement`), each device steps its own slice with
 ``threads // devices`` threads (at least one), bit for bit as on one device. The callback
-path is not partitioned (its call sees the whole batch).
+path is not partitioned (its call sees the whole batch). Such a multi-device program names
+its partitioning by a key of this process, so JAX's persistent cache does not carry it to
+another process; a one-device program is unchanged.
 
 **Fields.** A step reads the state MJX's step reads (:data:`INPUTS`: ``time``, ``qpos``,
 ``qvel``, ``act``, ``qacc_warmstart``, ``ctrl``, applied forces, ``eq_active``, mocap poses,
