@@ -25,9 +25,9 @@ _SCRIPT = textwrap.dedent(
     import jaxenvs
     from jaxenvs.actions import random_actions
 
-    out, task, num_envs, steps = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+    out, runs = sys.argv[1], json.loads(sys.argv[2])
     res, arrays = {"devices": jax.local_device_count()}, {}
-    for n in (None, 1):
+    for (task, num_envs, steps), n in [(r, n) for r in runs for n in (None, 1)]:
         benv = jaxenvs.make(task, num_envs=num_envs, physics="c", devices=n)
 
         def run(key, benv=benv):
@@ -39,17 +39,18 @@ _SCRIPT = textwrap.dedent(
         fn = jax.jit(run)
         text = fn.lower(jax.random.key(3)).compile().as_text()
         state, traj = fn(jax.random.key(3))
-        tag = "spread" if n is None else "one"
-        res[f"devices_{tag}"] = benv.devices
-        res[f"threads_{tag}"] = benv.env.sim.engine.threads
-        res[f"shards_{tag}"] = len(state.obs.sharding.device_set)
+        side = "spread" if n is None else "one"
+        tag = f"{task}_{side}"
+        res[f"{task}_devices_{side}"] = benv.devices
+        res[f"{task}_threads_{side}"] = benv.env.sim.engine.threads
+        res[f"{task}_shards_{side}"] = len(state.obs.sharding.device_set)
         # every engine call of the compiled program: its qpos-shaped result and threads
-        res[f"calls_{tag}"] = [
+        res[f"{task}_calls_{side}"] = [
             line for line in text.splitlines()
             if re.search(r"custom-call.*(jaxenvs|xla_ffi_python_cpu_callback|callback)", line)
         ]
         for i, x in enumerate(jax.tree.leaves((state.data, traj))):
-            arrays[f"{tag}_{i}"] = np.asarray(x)
+            arrays[f"{tag}_{i:03d}"] = np.asarray(x)
     np.savez(out + ".npz", **arrays)
     with open(out + ".json", "w") as f:
         json.dump(res, f)
@@ -57,14 +58,19 @@ _SCRIPT = textwrap.dedent(
 )
 
 
-def _run(tmp: Path, task: str, num_envs: int, steps: int, native: bool) -> tuple[dict, dict]:
+_RUNS = [("CartPole-v0", 8, 24), ("HexapodWalk-v0", 4, 4)]
+
+
+def _run(tmp: Path, native: bool) -> tuple[dict, dict]:
+    """Every run of :data:`_RUNS` (the callback path: CartPole only) in one subprocess."""
+    runs = _RUNS if native else _RUNS[:1]
     out = tmp / "res"
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     env.pop("JAX_NUM_CPU_DEVICES", None)
     if not native:
         env["JAXENVS_NATIVE"] = "0"
     proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT, str(out), task, str(num_envs), str(steps)],
+        [sys.executable, "-c", _SCRIPT, str(out), json.dumps(runs)],
         env=env,
         capture_output=True,
         text=True,
@@ -74,45 +80,54 @@ def _run(tmp: Path, task: str, num_envs: int, steps: int, native: bool) -> tuple
     return json.loads(Path(f"{out}.json").read_text()), dict(np.load(f"{out}.npz"))
 
 
-def _check_bit_identical(arrays: dict) -> None:
-    one = sorted(k for k in arrays if k.startswith("one_"))
-    assert one and len(one) == sum(k.startswith("spread_") for k in arrays)
+@pytest.fixture(scope="module", params=[True, False], ids=["native", "callback"])
+def two_devices(request, tmp_path_factory):
+    return request.param, *_run(tmp_path_factory.mktemp("cdevices"), request.param)
+
+
+def _check_bit_identical(arrays: dict, task: str) -> None:
+    one = sorted(k for k in arrays if k.startswith(f"{task}_one_"))
+    assert one and len(one) == sum(k.startswith(f"{task}_spread_") for k in arrays)
     for key in one:
-        a, b = arrays[key], arrays["spread_" + key[4:]]
+        a, b = arrays[key], arrays[key.replace("_one_", "_spread_")]
         assert a.shape == b.shape and a.dtype == b.dtype, key
         np.testing.assert_array_equal(b, a, err_msg=key)
 
 
-@pytest.mark.parametrize("native", [True, False], ids=["native", "callback"])
-def test_c_batch_over_two_devices_is_bit_identical_and_split(tmp_path, native):
+def test_c_batch_over_two_devices_is_bit_identical_and_split(two_devices):
     """8 CartPole envs under C spread over 2 host devices by default: the same states as
     on one device, bit for bit, through auto-resets. Native: each device's engine call
     sees 4 envs (not the whole batch) and half of the engine's threads."""
-    res, arrays = _run(tmp_path, "CartPole-v0", 8, 24, native)
+    native, res, arrays = two_devices
+    t = "CartPole-v0_"
     assert res["devices"] == 2
-    assert (res["devices_spread"], res["shards_spread"]) == (2, 2)
-    assert (res["devices_one"], res["shards_one"]) == (1, 1)
-    done = [v for k, v in arrays.items() if k.startswith("one_")][-1]
+    assert (res[t + "devices_spread"], res[t + "shards_spread"]) == (2, 2)
+    assert (res[t + "devices_one"], res[t + "shards_one"]) == (1, 1)
+    leaves = sorted(k for k in arrays if k.startswith(t + "one_"))
+    done = arrays[leaves[-1]]
     assert done.dtype == bool and done.any()  # episodes ended: the auto-reset ran
-    _check_bit_identical(arrays)
+    _check_bit_identical(arrays, "CartPole-v0")
     # the compiled engine calls: per device 4 envs on the spread layout, 8 on one device;
     # the callback path is not partitioned (one device steps the whole batch)
     nq = 2  # CartPole's qpos
-    spread, one = res["calls_spread"], res["calls_one"]
+    spread, one = res[t + "calls_spread"], res[t + "calls_one"]
     assert spread and one
     per_device = 4 if native else 8
     assert all(f"[{per_device},{nq}]" in c for c in spread), spread[0][:300]
     assert not any(f"[{12 - per_device},{nq}]" in c for c in spread), spread[0][:300]
     assert all(f"[8,{nq}]" in c for c in one), one[0][:300]
     if native:  # each device's call gets its share of the pool
-        threads = res["threads_spread"]
+        threads = res[t + "threads_spread"]
         share = max(1, threads // 2)
         assert all(re.search(rf"threads = {share} ", c) for c in spread), spread[0][-400:]
         assert all(re.search(rf"threads = {threads} ", c) for c in one), one[0][-400:]
 
 
-def test_walker_c_over_two_devices_matches_one(tmp_path):
+def test_walker_c_over_two_devices_matches_one(two_devices):
     """The hexapod walker (contacts, several bodies) under C on 2 devices: bit-identical."""
-    res, arrays = _run(tmp_path, "HexapodWalk-v0", 4, 4, True)
-    assert (res["devices_spread"], res["shards_spread"]) == (2, 2)
-    _check_bit_identical(arrays)
+    native, res, arrays = two_devices
+    if not native:
+        pytest.skip("the walker runs on the native engine only (the callback run: CartPole)")
+    t = "HexapodWalk-v0_"
+    assert (res[t + "devices_spread"], res[t + "shards_spread"]) == (2, 2)
+    _check_bit_identical(arrays, "HexapodWalk-v0")
