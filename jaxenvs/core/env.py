@@ -5,18 +5,20 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxenvs.config import require
 from jaxenvs.physics import PHYSICS_CHOICES, resolve_engine
 from jaxenvs.physics.sim import Sim
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 PyTree = Any
 Params = Any

@@ -49,15 +49,17 @@ import functools
 import threading
 import warnings
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from jaxenvs.physics import native
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 _S = mujoco.mjtState
 _W = mujoco.mjtWarning
