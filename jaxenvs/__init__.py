@@ -9,13 +9,8 @@ The public surface::
     benv = jaxenvs.make("CartPole-v0", num_envs=4096)   # batched, auto-resetting
 """
 
-import contextlib as _contextlib
-import io as _io
-
-# mujoco.mjx prints a notice when its optional Warp backend is absent; keep imports quiet.
-with _contextlib.redirect_stdout(_io.StringIO()):
-    from mujoco import mjx as _mjx  # noqa: F401
-
+# ``mujoco.mjx`` is imported when a model is first built (jaxenvs.physics.sim.mjx_module),
+# not here: a process that only lists envs or reads the CLI's help does not pay for it.
 # the Gymnasium facade registers every id (and every later one) as ``jaxenvs/<id>``
 from jaxenvs.compat import gymnasium as _gymnasium  # noqa: F401
 from jaxenvs.config import ConfigError

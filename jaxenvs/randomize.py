@@ -14,15 +14,20 @@ quantity, a ``(low, high)`` pair (the robot's ranges come from the robot's
 * a **value range** replaces the quantity by a value drawn uniformly in ``[low, high]``.
 
 Every helper is a pure function of an explicit key; factors are drawn independently per
-element (per body, per dof, per actuator) unless an index mask restricts them. Configs
+element (per body, per dof, per actuator) unless an index mask restricts them. A sampler
+that draws several quantities should draw them with :func:`uniforms` (one PRNG call for
+all of them) and apply them with :func:`scaled`: on a CPU each PRNG call is a loop that
+XLA compiles on its own, so a randomised reset's compile time and memory grow with the
+number of calls, not with the number of values drawn. Configs
 validate their ranges with :func:`check_range` so that a bad range fails at ``make``
 time with the key's name, not as NaNs later.
 """
 
 from __future__ import annotations
 
+import math
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -67,6 +72,29 @@ def uniform(key: jax.Array, value_range: Range, shape: tuple[int, ...] = ()) -> 
     return jnp.float32(low) + u * jnp.float32(high - low)
 
 
+def uniforms(key: jax.Array, draws: Sequence[tuple[Range, tuple[int, ...]]]) -> list[jax.Array]:
+    """Several float32 draws, each uniform in its ``(low, high)`` range and of its shape,
+    from ONE PRNG call: draw ``i`` is the next ``prod(shape_i)`` values of one uniform
+    vector, so each keeps the distribution of :func:`uniform` (independent elements), and
+    a draw does not depend on the draws listed after it."""
+    sizes = [math.prod(shape) for _, shape in draws]
+    u = jax.random.uniform(key, (sum(sizes),), jnp.float32)
+    out, start = [], 0
+    for ((low, high), shape), size in zip(draws, sizes, strict=True):
+        part = u[start : start + size].reshape(shape)
+        out.append(jnp.float32(low) + part * jnp.float32(high - low))
+        start += size
+    return out
+
+
+def scaled(value: jax.Array, factor: jax.Array, mask: jax.Array | None = None) -> jax.Array:
+    """``value`` times ``factor`` (one per leading index: shape ``value.shape[:1]``, or
+    ``value.shape``), in ``value``'s dtype; rows outside ``mask`` keep their value."""
+    value = jnp.asarray(value)
+    factor = factor.reshape(factor.shape + (1,) * (value.ndim - factor.ndim))
+    return _masked((value * factor).astype(value.dtype), value, mask)
+
+
 def _masked(new: jax.Array, old: jax.Array, mask: jax.Array | None) -> jax.Array:
     if mask is None:
         return new
@@ -83,9 +111,7 @@ def scale(
     the arm's bodies, not the world body); unselected rows keep their value.
     """
     value = jnp.asarray(value)
-    factor = uniform(key, scale_range, value.shape[:1])
-    factor = factor.reshape(factor.shape + (1,) * (value.ndim - 1))
-    return _masked((value * factor).astype(value.dtype), value, mask)
+    return scaled(value, uniform(key, scale_range, value.shape[:1]), mask)
 
 
 def offset(
@@ -109,11 +135,7 @@ def scale_mass(
     Scaling the mass alone would give a body whose inertia no longer matches its shape.
     """
     factor = uniform(key, scale_range, body_mass.shape)
-    mass = _masked((body_mass * factor).astype(body_mass.dtype), body_mass, mask)
-    inertia = _masked(
-        (body_inertia * factor[:, None]).astype(body_inertia.dtype), body_inertia, mask
-    )
-    return mass, inertia
+    return scaled(body_mass, factor, mask), scaled(body_inertia, factor, mask)
 
 
 def scale_fields(
@@ -126,14 +148,26 @@ def scale_fields(
 
     Fields without a range are returned unchanged. Each field's subkey is ``key`` folded
     with a checksum of the field's name, so the draw of one field does not depend on
-    which other fields are randomised.
+    which other fields are randomised (JAX's default partitionable threefry: a draw's
+    first ``n`` values do not depend on its length). All fields are drawn in two PRNG
+    calls (the subkeys, then their factors), whatever their number.
     """
     masks = masks or {}
     missing = sorted(n for n in ranges if n not in fields)
     if missing:
         raise KeyError(f"no model field(s) {missing} to randomise; have {sorted(fields)}")
     out = dict(fields)
-    for name, value_range in ranges.items():
-        sub = jax.random.fold_in(key, zlib.crc32(name.encode()) & 0x7FFFFFFF)
-        out[name] = scale(sub, fields[name], value_range, masks.get(name))
+    if not ranges:
+        return out
+    names = list(ranges)
+    salts = jnp.asarray([zlib.crc32(n.encode()) & 0x7FFFFFFF for n in names], jnp.uint32)
+    subs = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, salts)
+    longest = max(jnp.shape(fields[n])[0] if jnp.ndim(fields[n]) else 1 for n in names)
+    draws = jax.vmap(lambda k: jax.random.uniform(k, (longest,), jnp.float32))(subs)
+    for i, name in enumerate(names):
+        value = jnp.asarray(fields[name])
+        low, high = ranges[name]
+        u = draws[i, : value.shape[0] if value.ndim else 1].reshape(value.shape[:1])
+        factor = jnp.float32(low) + u * jnp.float32(high - low)
+        out[name] = scaled(value, factor, masks.get(name))
     return out

@@ -1,8 +1,11 @@
-"""The modules of jaxenvs import each other without a cycle (read from the source, no JAX)."""
+"""The modules of jaxenvs import each other without a cycle (read from the source, no JAX),
+and ``import jaxenvs`` leaves ``mujoco.mjx`` to the first model built (a fresh process)."""
 
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -151,3 +154,35 @@ def test_private_jax_only_in_its_guarded_module():
     """JAX's internals are read in one module, which checks the JAX release first."""
     readers = sorted(name for name, path in _modules().items() if "jax._src" in path.read_text())
     assert readers == ["jaxenvs.run._jax_cache_hook"]
+
+
+#: run in a fresh process: what a process that builds no model imports, then a C-engine env
+LAZY_MJX = """
+import runpy, sys
+import jax, jax.numpy as jnp
+import jaxenvs
+assert "mujoco.mjx" not in sys.modules, "import jaxenvs imported mujoco.mjx"
+jaxenvs.list_envs()
+jaxenvs.spec("HexapodWalk-v0")
+sys.argv = ["jaxenvs", "--help"]
+try:
+    runpy.run_module("jaxenvs", run_name="__main__")
+except SystemExit as e:
+    assert e.code in (0, None), e.code
+assert "mujoco.mjx" not in sys.modules, "listing envs or the CLI's help imported mujoco.mjx"
+# building a model imports it (its state is an mjx.Data), and quietly
+benv = jaxenvs.make("CartPole-v0", num_envs=2, physics="c")
+assert "mujoco.mjx" in sys.modules
+s = jax.jit(benv.step)(jax.jit(benv.reset)(jax.random.key(0)), jnp.zeros(2, jnp.int32))
+assert bool(jnp.all(jnp.isfinite(s.obs))) and s.obs.shape == (2, 4), s.obs.shape
+print("ok")
+"""
+
+
+def test_mjx_is_imported_only_when_a_model_is_built():
+    done = subprocess.run(
+        [sys.executable, "-c", LAZY_MJX], capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    help_end = done.stdout.rstrip().rsplit("\n", 1)[-1]
+    assert help_end == "ok", done.stdout[-2000:]

@@ -78,6 +78,42 @@ def test_scale_fields_draw_does_not_depend_on_other_fields():
         randomize.scale_fields(key, fields, {"body_mass": (0.5, 1.5)})
 
 
+def test_uniforms_are_slices_of_one_draw_within_their_ranges():
+    key = jax.random.key(2)
+    a, b, c = randomize.uniforms(key, [((0.5, 1.5), (4,)), ((-1.0, 0.0), (2, 3)), ((2, 2), ())])
+    assert a.shape == (4,) and b.shape == (2, 3) and c.shape == ()
+    u = np.asarray(jax.random.uniform(key, (11,)))
+    np.testing.assert_allclose(np.asarray(a), 0.5 + u[:4], rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(b).ravel(), -1.0 + u[4:10], rtol=1e-6, atol=1e-7)
+    assert float(c) == 2.0
+    # a draw does not depend on the draws after it
+    (first,) = randomize.uniforms(key, [((0.5, 1.5), (4,))])
+    np.testing.assert_array_equal(np.asarray(first), np.asarray(a))
+    big = np.concatenate(
+        [
+            np.asarray(x).ravel()
+            for x in randomize.uniforms(jax.random.key(3), [((0, 1), (5000,))] * 2)
+        ]
+    )
+    assert abs(big.mean() - 0.5) < 0.02 and big.min() >= 0 and big.max() <= 1
+
+
+def test_batched_randomised_reset_is_the_envs_reset_with_drawn_params():
+    benv = jaxenvs.make("CartPole-v0", num_envs=4, randomize=True)
+    key = jax.random.key(7)
+    s = jax.jit(benv.reset)(key)
+    keys = jax.random.split(key, 4)
+    want = jax.jit(jax.vmap(benv.env.reset))(keys, s.params)
+    for got, ref in zip(jax.tree.leaves(s.obs), jax.tree.leaves(want.obs), strict=True):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(ref))
+    np.testing.assert_array_equal(
+        np.asarray(jax.random.key_data(s.key)), np.asarray(jax.random.key_data(want.key))
+    )
+    drawn = jax.vmap(benv.env.sample_params)(jax.vmap(lambda k: jax.random.split(k, 4)[3])(keys))
+    for got, ref in zip(jax.tree.leaves(s.params), jax.tree.leaves(drawn), strict=True):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(ref))
+
+
 # ------------------------------------------------------------------------------ tasks
 
 CARTPOLE_IDS = ["CartPole-v0", "CartpoleStayUp-v0", "CartpoleBalance-v0", "CartpoleSwingup-v0"]

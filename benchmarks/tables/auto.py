@@ -69,6 +69,20 @@ def c_costs(recs: list[Rec]) -> Cells:
     return cells
 
 
+def c_memory(recs: list[Rec]) -> Cells:
+    """Peak RSS by stage (medians of the runs) of each checkout, cold and warm."""
+    (rec,) = recs
+    stages = ("make", "reset_compiled", "reset_ran", "step_compiled", "steps")
+    head = ["commit", "compile cache", "runs", "make", "reset compiled", "reset ran"]
+    cells = [[*head, "step compiled", "20 steps (peak)", "peaks of the runs"]]
+    for r in rows(rec, measure="memory_stages"):
+        peaks = ", ".join(f"{run['steps']:.0f}" for run in r["runs"])
+        figures = [f"{r[s]:.0f}" for s in stages]
+        figures[-1] = f"**{figures[-1]}**"
+        cells.append([r["tree_commit"], r["compile_cache"], str(len(r["runs"])), *figures, peaks])
+    return cells
+
+
 def _sweep_files(cores: int) -> tuple[str, ...]:
     return tuple(
         f"engines_sweep_cpu{cores}_{t}" for t in ("cartpolev0", "reacherv0", "hexapodwalkv0")
@@ -79,4 +93,5 @@ TABLES = {
     "engines-sweep-cpu16": Table(_sweep_files(16), engines_sweep),
     "engines-sweep-cpu2": Table(_sweep_files(2), engines_sweep),
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
+    "c-memory-cpu2": Table(("c_memory_cpu2",), c_memory),
 }

@@ -20,7 +20,9 @@ class BatchedEnv:
     return and length stay in ``info["final_obs"]``, ``info["final_return"]`` and
     ``info["final_length"]``, and ``reward``/``terminated``/``truncated`` still describe
     the transition that ended it. With ``randomize=True`` each env draws its own params
-    from ``env.sample_params`` at every reset (domain randomisation).
+    from ``env.sample_params`` at every reset (domain randomisation): its state is
+    ``env.reset(k, params)``'s for its key ``k``, the params drawn from
+    ``jax.random.split(k, 4)[3]`` (with JAX's default partitionable threefry).
 
     **Devices.** The batch is spread over the local devices that
     :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
@@ -68,9 +70,11 @@ class BatchedEnv:
 
     def _reset_batch(self, keys: jax.Array, params: Params) -> State:
         if self.randomize and params is None:
-            keys, pkeys = jnp.moveaxis(jax.vmap(jax.random.split)(keys), 1, 0)
-            params = jax.vmap(self.env.sample_params)(pkeys)
-            state = jax.vmap(self.env.reset)(keys, params)
+            # one split per env for its reset's 3 keys and its params key: the state is
+            # env.reset(key, params)'s, the params drawn from split(key, 4)[3]
+            split = jax.vmap(lambda k: jax.random.split(k, 4))(keys)
+            params = jax.vmap(self.env.sample_params)(split[:, 3])
+            state = jax.vmap(self.env._reset_from)(split, params)
             return state.replace(params=params)
         return jax.vmap(self.env.reset, in_axes=(0, None))(keys, params)
 

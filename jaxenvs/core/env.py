@@ -5,18 +5,20 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxenvs.config import require
 from jaxenvs.physics import PHYSICS_CHOICES, resolve_engine
 from jaxenvs.physics.sim import Sim
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 PyTree = Any
 Params = Any
@@ -255,8 +257,16 @@ class Env(abc.ABC, Generic[ConfigT]):
     def reset(self, key: jax.Array, params: Params = None) -> State:
         """Start an episode from the task's initial-state distribution."""
         check_key(key, f"{type(self).__name__}.reset")
+        return self._reset_from(jax.random.split(key, 3), params)
+
+    def _reset_from(self, keys: jax.Array, params: Params) -> State:
+        """:meth:`reset` from ``keys``, the first 3 (at least) of ``jax.random.split(key,
+        n)``: the state's next key, the init's and the observation's. A caller that needs
+        more keys of the same ``key`` splits once (``n`` > 3) and passes them all: with
+        JAX's partitionable threefry the first 3 equal ``split(key, 3)``, so the state is
+        :meth:`reset`'s, and it costs one PRNG call (a loop XLA compiles on a CPU) less."""
         params = self.default_params if params is None else params
-        key, init_key, obs_key = jax.random.split(key, 3)
+        key, init_key, obs_key = keys[0], keys[1], keys[2]
         data, extras = self._init(init_key, params)
         obs = self._observe(obs_key, data, extras, params).astype(jnp.float32)
         zero = jnp.zeros((), jnp.float32)

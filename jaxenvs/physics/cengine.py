@@ -58,7 +58,7 @@ import math
 import threading
 import warnings
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
@@ -66,9 +66,11 @@ import mujoco
 import numpy as np
 from jax.custom_batching import custom_vmap
 from jax.experimental.custom_partitioning import custom_partitioning
-from mujoco import mjx
 
 from jaxenvs.physics import native
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 _S = mujoco.mjtState
 _W = mujoco.mjtWarning

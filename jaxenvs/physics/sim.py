@@ -15,17 +15,34 @@ so ids looked up on the host model index device data too; rendering uses the hos
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import io
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
-Controller = Callable[[mjx.Data], jax.Array]
+if TYPE_CHECKING:
+    from mujoco import mjx
+
+Controller = Callable[["mjx.Data"], jax.Array]
+
+
+@functools.cache
+def mjx_module() -> ModuleType:
+    """``mujoco.mjx``, imported on first use: importing it takes most of a second, which a
+    process that never builds an MJX model (``import jaxenvs``, the CLI's help, listing
+    envs) does not pay. It prints a notice when its optional Warp backend is absent; the
+    import is kept quiet."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        from mujoco import mjx
+    return mjx
 
 
 class Sim:
@@ -68,12 +85,12 @@ class Sim:
             edit(self.mj_model)
             if lean:
                 edit(self.physics_mj_model)
-        self.mx = mjx.put_model(self.physics_mj_model)
+        self.mx = mjx_module().put_model(self.physics_mj_model)
         self.substeps = int(substeps)
         self.timestep = float(timestep)
         # from the host model: the same Data as from ``self.mx`` (tested), built with numpy
         # so that making an env compiles no eager JAX op
-        self._data0 = mjx.make_data(self.physics_mj_model)
+        self._data0 = mjx_module().make_data(self.physics_mj_model)
 
     @property
     def control_dt(self) -> float:
@@ -120,10 +137,10 @@ class Sim:
         """Hold ``ctrl`` for one control step (``substeps`` MJX physics steps)."""
         data = data.replace(ctrl=jnp.asarray(ctrl, data.ctrl.dtype))
         if self.substeps == 1:
-            return mjx.step(model, data)
+            return mjx_module().step(model, data)
 
         def body(d: mjx.Data, _: None) -> tuple[mjx.Data, None]:
-            return mjx.step(model, d), None
+            return mjx_module().step(model, d), None
 
         data, _ = jax.lax.scan(body, data, None, length=self.substeps)
         return data
@@ -131,7 +148,7 @@ class Sim:
     def forward(self, model: Any, data: mjx.Data) -> mjx.Data:
         """Every derived field (positions, velocities, forces) at ``data``'s state, as
         ``mjx.forward``; pass ``self.model_with(fields)`` as for :meth:`step`."""
-        return mjx.forward(model, data)
+        return mjx_module().forward(model, data)
 
     def step_controlled(self, model: Any, data: mjx.Data, controller: Controller) -> mjx.Data:
         """One control step where ``controller(data) -> ctrl`` runs before every substep.
@@ -142,7 +159,7 @@ class Sim:
 
         def body(d: mjx.Data, _: None) -> tuple[mjx.Data, None]:
             ctrl = jnp.asarray(controller(d), d.ctrl.dtype)
-            return mjx.step(model, d.replace(ctrl=ctrl)), None
+            return mjx_module().step(model, d.replace(ctrl=ctrl)), None
 
         data, _ = jax.lax.scan(body, data, None, length=self.substeps)
         return data
@@ -262,4 +279,4 @@ def _lean_spec(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjSpec]:
 
 def forward(model: mjx.Model, data: mjx.Data) -> mjx.Data:
     """Recompute derived quantities (positions, velocities) from ``qpos``/``qvel``."""
-    return mjx.forward(model, data)
+    return mjx_module().forward(model, data)

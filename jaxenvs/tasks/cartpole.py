@@ -27,18 +27,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 from flax import struct
-from mujoco import mjx
 
 from jaxenvs.config import require
 from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.robots.base import Readings, RobotTask
 from jaxenvs.robots.cartpole import Cartpole, CartpoleRanges
 from jaxenvs.tasks.rewards import tolerance
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 
 class CartpoleParams(struct.PyTreeNode):

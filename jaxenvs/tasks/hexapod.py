@@ -34,13 +34,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxenvs import randomize
 from jaxenvs.config import require
@@ -48,6 +48,9 @@ from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots.base import Readings, RobotTask, gravity_in_body, world_to_body
 from jaxenvs.robots.hexapod import JOINT_RANGE, Hexapod, HexapodLeg, HexapodRanges, leg_tip
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 #: HexapodWalk-v0's observation noise at ``obs_noise=1``, per entry: joint angles (rad),
 #: joint velocities (rad/s), height (m), gravity direction, body velocity (m/s), body

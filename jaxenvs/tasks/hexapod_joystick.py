@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxenvs.config import require
 from jaxenvs.core import Env, State
@@ -31,6 +31,9 @@ from jaxenvs.randomize import Range
 from jaxenvs.robots.base import Readings, RobotTask, gravity_in_body, quat_to_mat
 from jaxenvs.robots.hexapod import Hexapod
 from jaxenvs.tasks.hexapod import HexapodRandomization, _solver_edit
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 #: the observation noise at ``obs_noise=1``, per entry: joint angles (rad), joint
 #: velocities (rad/s), gravity direction, gyro (rad/s); the last action and the command

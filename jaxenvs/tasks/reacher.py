@@ -49,11 +49,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 from flax import struct
-from mujoco import mjx
 
 from jaxenvs import randomize
 from jaxenvs.config import require
@@ -61,6 +61,9 @@ from jaxenvs.core import Env, NoExtras, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots.base import Readings, RobotTask
 from jaxenvs.robots.reacher import REACH, ReacherArm, ReacherRanges
+
+if TYPE_CHECKING:
+    from mujoco import mjx
 
 
 class ReacherParams(struct.PyTreeNode):

@@ -64,13 +64,20 @@ class Cartpole(Robot):
         self, key: jax.Array, fields: Mapping[str, jax.Array], config: Any
     ) -> dict[str, jax.Array]:
         """``fields`` randomised by ``config``'s :class:`CartpoleRanges`."""
-        mass_key, damping_key, gain_key = jax.random.split(key, 3)
         out = dict(fields)
-        out["body_mass"], out["body_inertia"] = randomize.scale_mass(
-            mass_key, out["body_mass"], out["body_inertia"], config.mass_scale
+        # one PRNG call for every factor (jaxenvs.randomize.uniforms)
+        mass, damping, gear = randomize.uniforms(
+            key,
+            [
+                (config.mass_scale, out["body_mass"].shape[:1]),
+                (config.damping_range, out["dof_damping"].shape),
+                (config.gain_scale, out["actuator_gear"].shape[:1]),
+            ],
         )
-        out["dof_damping"] = randomize.offset(damping_key, out["dof_damping"], config.damping_range)
-        out["actuator_gear"] = randomize.scale(gain_key, out["actuator_gear"], config.gain_scale)
+        out["body_mass"] = randomize.scaled(out["body_mass"], mass)
+        out["body_inertia"] = randomize.scaled(out["body_inertia"], mass)
+        out["dof_damping"] = (out["dof_damping"] + damping).astype(out["dof_damping"].dtype)
+        out["actuator_gear"] = randomize.scaled(out["actuator_gear"], gear)
         return out
 
     @staticmethod

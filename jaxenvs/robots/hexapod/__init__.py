@@ -126,20 +126,28 @@ class HexapodRanges(Randomization):
 def sample_hexapod_fields(
     key: jax.Array, fields: Mapping[str, jax.Array], config: HexapodRanges
 ) -> dict[str, jax.Array]:
-    """``fields`` (the defaults) randomised by ``config``'s ranges (module docstring)."""
-    mass_key, friction_key, gain_key, damping_key = jax.random.split(key, 4)
+    """``fields`` (the defaults) randomised by ``config``'s ranges (module docstring).
+
+    All factors come from one PRNG call (:func:`jaxenvs.randomize.uniforms`), in the order
+    mass (per body), friction (per foot pair, when ``fields`` has ``pair_friction``), kp
+    (per servo), damping (per joint).
+    """
     out = dict(fields)
-    out["body_mass"], out["body_inertia"] = randomize.scale_mass(
-        mass_key, out["body_mass"], out["body_inertia"], config.mass_scale
-    )
+    draws = [(config.mass_scale, out["body_mass"].shape[:1])]
     if "pair_friction" in out:
-        out["pair_friction"] = randomize.scale(
-            friction_key, out["pair_friction"], config.friction_scale
-        )
-    kp = randomize.uniform(gain_key, config.gain_scale, out["actuator_gainprm"].shape[:1])
+        draws.append((config.friction_scale, out["pair_friction"].shape[:1]))
+    draws.append((config.gain_scale, out["actuator_gainprm"].shape[:1]))
+    draws.append((config.damping_scale, out["dof_damping"].shape[:1]))
+    factors = randomize.uniforms(key, draws)
+    mass = factors.pop(0)
+    out["body_mass"] = randomize.scaled(out["body_mass"], mass)
+    out["body_inertia"] = randomize.scaled(out["body_inertia"], mass)
+    if "pair_friction" in out:
+        out["pair_friction"] = randomize.scaled(out["pair_friction"], factors.pop(0))
+    kp, damping = factors
     out["actuator_gainprm"] = out["actuator_gainprm"].at[:, 0].multiply(kp)
     out["actuator_biasprm"] = out["actuator_biasprm"].at[:, 1].multiply(kp)
-    out["dof_damping"] = randomize.scale(damping_key, out["dof_damping"], config.damping_scale)
+    out["dof_damping"] = randomize.scaled(out["dof_damping"], damping)
     return out
 
 
