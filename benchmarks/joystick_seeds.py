@@ -17,8 +17,9 @@ joint damping x0.7-1.3). Per group:
 
 A fall is the task's DEFAULT termination (``JoystickConfig()``: body below 0.06 m or tilted
 more than ~45 degrees), whatever termination the run trained with; pushes are off; the
-run's observation noise is kept. ``--physics c`` runs it on MuJoCo's C engine (CPU; set
-``JAX_PLATFORMS=cpu``).
+run's observation noise, action delay (``action_delay_max``: each env's drawn at reset) and
+sensor biases are kept, so a run trained for the robot's link is measured with them.
+``--physics c`` runs it on MuJoCo's C engine (CPU; set ``JAX_PLATFORMS=cpu``).
 
 ``eval`` writes its figures to ``RUN/joystick_eval_mjx.json`` (or ``_c.json``); ``table``
 collects them, with each run's summary.json, into one record per run
@@ -175,6 +176,8 @@ def evaluate(
             "zero_probability": env.config.zero_probability,
         },
         "settle_s": settle * env.control_dt,
+        "action_delay_max": env.config.action_delay_max,
+        "sensor_bias": {"joint": env.config.joint_bias, "gyro": env.config.gyro_bias},
         "wall_seconds": round(seconds_wall, 2),  # compile included
     }
     for g, name in enumerate(GROUPS):
@@ -270,6 +273,9 @@ def table(run_dirs: list[str]) -> list[dict[str, Any]]:
             ),
             "env_steps": summary["env_steps"],
             "eval_mean_return": summary["eval_mean_return"],
+            # what the run trained (and was evaluated) with for the robot's link
+            "action_delay_max": resolved.env.action_delay_max,
+            "sensor_bias": {"joint": resolved.env.joint_bias, "gyro": resolved.env.gyro_bias},
         }
         for physics, field, group in BENCHES:
             path = run / EVAL_FILE.format(physics)

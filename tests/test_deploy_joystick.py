@@ -1,6 +1,7 @@
 """``jaxenvs deploy`` on ``HexapodJoystick-v0`` through the simulated robot: the command
-from a script, the last action in the observation, and the tracking errors of the summary
-measured on the simulated robot's ground truth.
+from a script, the last actions in the observation (of the trained env's
+``action_delay_max``), and the tracking errors of the summary measured on the simulated
+robot's ground truth.
 
 The policy is exported as a one-layer ``.npz`` whose action is a constant (its bias): the
 hexapod stands still, so the errors are the commanded speeds themselves. No training.
@@ -12,38 +13,48 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
-from jaxenvs.deploy.export import npz_bytes
+import jaxenvs
+from jaxenvs.deploy import loop
+from jaxenvs.deploy.export import env_config_changes, npz_bytes
 from jaxenvs.deploy.log import read_log
 from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, NumpyPolicy
+from jaxenvs.robots.interface import HostTask, SensorFrame, spec_of
+from jaxenvs.tasks.hexapod_joystick import JoystickConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 ACTION = 0.05  # every joint slightly off the neutral stance: the robot stands
 
 
-def _constant_policy(path: Path) -> Path:
-    """A HexapodJoystick-v0 policy that always acts :data:`ACTION` on every joint."""
+def _constant_policy(path: Path, **env_config: object) -> Path:
+    """A HexapodJoystick-v0 policy (of the env with ``env_config``) that always acts
+    :data:`ACTION` on every joint."""
+    size = jaxenvs.make("HexapodJoystick-v0", physics="c", **env_config).observation_size
     meta = {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "env_id": "HexapodJoystick-v0",
-        "observation_size": "63",
+        "observation_size": str(size),
         "action_size": "18",
         "discrete": "0",
         "control_dt": "0.05",
         "activation": "tanh",
+        "env_config": json.dumps(env_config),
     }
-    kernel, bias = np.zeros((63, 18), np.float32), np.full(18, ACTION, np.float32)
+    kernel, bias = np.zeros((size, 18), np.float32), np.full(18, ACTION, np.float32)
     path.write_bytes(npz_bytes(NumpyPolicy((kernel,), (bias,), None, False, meta)))
     return path
 
 
-def _deploy(tmp_path: Path, script: str, seconds: float) -> tuple[dict, dict]:
-    policy, commands = _constant_policy(tmp_path / "p.npz"), tmp_path / "script.txt"
+def _deploy(tmp_path: Path, script: str, seconds: float, **env_config: object) -> tuple[dict, dict]:
+    policy = _constant_policy(tmp_path / "p.npz", **env_config)
+    commands = tmp_path / "script.txt"
     commands.write_text(script)
     summary, log = tmp_path / "s.json", tmp_path / "l.mcap"
     argv = [sys.executable, "-m", "jaxenvs", "deploy", str(policy), "--env"]
@@ -59,8 +70,10 @@ def _deploy(tmp_path: Path, script: str, seconds: float) -> tuple[dict, dict]:
 def test_joystick_deploys_with_its_command_and_reports_tracking_errors(tmp_path):
     """2 s standing still: 1 s under a forward command (0.3 m/s), 1 s under a yaw rate
     (0.5 rad/s). The errors are those speeds (RMS over the halves), the robot never
-    moved or fell, and each observation holds the command in force and the last action."""
-    s, log = _deploy(tmp_path, "0 0.3 0 0\n1 0 0 0.5\n", 2.0)
+    moved or fell, and each observation holds the command in force and the last actions.
+    The policy was trained with ``action_delay_max=2`` (its metadata's env config): the
+    loop builds the task with it, so the observation holds the last three actions sent."""
+    s, log = _deploy(tmp_path, "0 0.3 0 0\n1 0 0 0.5\n", 2.0, action_delay_max=2)
     assert s["steps"] == 40 and s["error"] is None and s["terminated"] is False
     assert s["return"] is None  # the task's reward needs the servo forces: not in the truth
     assert s["tracking_steps"] >= 35
@@ -69,8 +82,78 @@ def test_joystick_deploys_with_its_command_and_reports_tracking_errors(tmp_path)
     assert rms["yaw"] == pytest.approx(0.5 / np.sqrt(2), abs=0.05)
     obs = np.asarray([c["obs"] for c in log["/deploy/command"]])
     assert np.allclose(obs[:20, -3:], [0.3, 0.0, 0.0]) and np.allclose(obs[20:, -3:], [0, 0, 0.5])
-    assert np.all(obs[0, 42:60] == 0.0) and np.allclose(obs[1:, 42:60], ACTION)
+    assert obs.shape == (40, 99)
+    history = obs[:, 42:96].reshape(40, 3, 18)  # the newest first
+    for i in range(3):
+        assert np.all(history[: i + 1, i] == 0.0) and np.allclose(history[i + 1 :, i], ACTION)
     assert [c["task"][0] for c in log["/deploy/command"]][-1] == pytest.approx([0, 0, 0.5])
+
+
+def test_exported_env_config_is_what_differs_from_the_defaults():
+    config = JoystickConfig(action_delay_max=2, vx_range=(-1.0, 1.0), obs_noise=0.0)
+    assert env_config_changes(config) == {"action_delay_max": 2, "vx_range": [-1.0, 1.0]}
+    assert json.loads(json.dumps(env_config_changes(config))) == env_config_changes(config)
+
+
+class _Link:
+    """A robot whose sensor frame the test sets; it keeps what the loop sends."""
+
+    def __init__(self) -> None:
+        self.frame: SensorFrame | None = None
+        self.sent: list[np.ndarray] = []
+
+    def latest(self) -> SensorFrame | None:
+        return self.frame
+
+    def send(self, seq: int, command: np.ndarray) -> None:
+        self.sent.append(command)
+
+
+class _Policy:
+    """Acts the given actions in turn; keeps the observations it was given."""
+
+    def __init__(self, actions: np.ndarray) -> None:
+        self.actions, self.seen = actions, []
+
+    def act(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
+        self.seen.append(obs)
+        return self.actions[len(self.seen) - 1], True
+
+
+class _Commands:
+    value: np.ndarray
+
+    def at(self, t: float) -> np.ndarray:
+        return self.value
+
+
+def test_loop_observation_is_the_envs_with_delayed_actions():
+    """Step by step, the deploy loop's observation of the env's readings (its own task
+    state: the command in force and the actions it sent) is the env's observation, for a
+    task with ``action_delay_max=2`` whose env draws a delay of 2."""
+    env = jaxenvs.make("HexapodJoystick-v0", physics="c", action_delay_max=2, command_interval=4)
+    host = HostTask(env)
+    model = env.sim.physics_mj_model
+    truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
+    host.warm(spec_of(env, "HexapodJoystick-v0").sizes(), truth)
+    actions = np.asarray(jax.random.uniform(jax.random.key(1), (8, 18), minval=-0.4, maxval=0.4))
+    link, policy, commands = _Link(), _Policy(actions.astype(np.float32)), _Commands()
+    st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
+    opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
+    keys = jax.random.split(jax.random.key(0), 32)
+    state = env.reset(keys[int(np.argmax(np.asarray(jax.vmap(env.reset)(keys).extras.delay)))])
+    assert int(state.extras.delay) == 2
+    step, observable = jax.jit(env.step), env.robot.observable()
+    t0 = time.monotonic()
+    for k in range(8):
+        readings = {n: np.asarray(v) for n, v in env.robot.sense(state.data).items()}
+        readings = {n: v for n, v in readings.items() if n in observable}
+        link.frame = SensorFrame(k, 0.0, readings, time.monotonic())
+        commands.value = np.asarray(state.extras.command)
+        loop._one_step(link, policy, st, rec, k, t0, time.monotonic(), opts, None)
+        np.testing.assert_allclose(policy.seen[k], state.obs, atol=1e-6)
+        state = step(state, actions[k])
+    assert len(link.sent) == 8
 
 
 def test_joystick_command_script_of_another_size_is_refused(tmp_path):

@@ -29,6 +29,24 @@ def env() -> HexapodJoystick:
     return made
 
 
+#: the gap's config: actions delayed by 0-2 steps, sensor biases
+GAP = {"action_delay_max": 2, "joint_bias": 0.02, "gyro_bias": 0.03}
+
+
+@pytest.fixture(scope="module")
+def gap_env() -> HexapodJoystick:
+    made = jaxenvs.make("HexapodJoystick-v0", physics="c", command_interval=3, **GAP)
+    assert isinstance(made, HexapodJoystick)
+    return made
+
+
+def _key_of_delay(env: HexapodJoystick, delay: int) -> jax.Array:
+    """A reset key whose env draws ``delay``."""
+    keys = jax.random.split(jax.random.key(11), 64)
+    drawn = np.asarray(jax.vmap(env.reset)(keys).extras.delay)
+    return keys[int(np.flatnonzero(drawn == delay)[0])]
+
+
 @pytest.fixture(scope="module")
 def walked(env):
     """A state after 10 steps of random actions."""
@@ -88,7 +106,59 @@ def test_observation_reads_only_what_the_robot_measures(env, walked):
     np.testing.assert_array_equal(env.observation(onboard, task), env.observation(readings, task))
     # the observation's tail is the last action and the command
     np.testing.assert_array_equal(walked.obs[-3:], walked.extras.command)
-    np.testing.assert_array_equal(walked.obs[-21:-3], walked.extras.action)
+    np.testing.assert_array_equal(walked.obs[-21:-3], walked.extras.actions[0])
+
+
+@pytest.mark.parametrize("delay", [0, 1, 2])
+def test_delay_applies_the_action_of_d_steps_ago(env, gap_env, delay):
+    """From the same key, the delayed env under actions a_t moves exactly as the undelayed
+    one under a_{t-d} (zeros before): the gap's draws leave the reset's other draws alone."""
+    step, plain_step = jax.jit(gap_env.step), jax.jit(env.step)
+    key = _key_of_delay(gap_env, delay)
+    state, plain = gap_env.reset(key), env.reset(key)
+    assert int(state.extras.delay) == delay
+    actions = jax.random.uniform(jax.random.key(7), (5, 18), minval=-0.5, maxval=0.5)
+    for t in range(5):
+        state = step(state, actions[t])
+        plain = plain_step(plain, actions[t - delay] if t >= delay else jnp.zeros(18))
+        np.testing.assert_array_equal(state.data.qpos, plain.data.qpos)
+        np.testing.assert_array_equal(state.data.qvel, plain.data.qvel)
+        # the observation holds the last three actions the policy gave, the newest first
+        history = [actions[t - i] if t >= i else jnp.zeros(18) for i in range(3)]
+        np.testing.assert_array_equal(state.obs[42:96], jnp.concatenate(history))
+        np.testing.assert_array_equal(state.obs[-3:], state.extras.command)
+
+
+def test_delay_and_biases_drawn_per_env_from_the_key(env, gap_env):
+    keys = jax.random.split(jax.random.key(2), 300)
+    extras = jax.vmap(gap_env.reset)(keys).extras
+    delay, bias = np.asarray(extras.delay), np.asarray(extras.bias)
+    counts = np.bincount(delay, minlength=3)
+    assert len(counts) == 3 and np.all(counts > 70)  # uniform in 0..2: 100 each
+    # constant offsets on the joint angles (0.02 rad) and the gyro (0.03 rad/s) only
+    assert np.all(np.abs(bias[:, :18]) <= 0.02) and np.abs(bias[:, :18]).max() > 0.019
+    assert np.all(np.abs(bias[:, 39:]) <= 0.03) and np.abs(bias[:, 39:]).max() > 0.029
+    assert np.all(bias[:, 18:39] == 0.0)
+    assert len(np.unique(bias[:, 0])) == len(keys)
+    again = jax.vmap(gap_env.reset)(keys).extras
+    np.testing.assert_array_equal(again.delay, delay)
+    np.testing.assert_array_equal(again.bias, bias)
+    other = jax.vmap(gap_env.reset)(jax.random.split(jax.random.key(3), 300)).extras
+    assert not np.array_equal(other.delay, delay)
+    # the plain env: no delay, no bias, the observation of the last action only
+    plain = jax.vmap(env.reset)(keys[:8])
+    assert np.all(np.asarray(plain.extras.delay) == 0) and not np.any(plain.extras.bias)
+    assert env.observation_size == 63 and plain.obs.shape == (8, 63)
+    assert gap_env.observation_size == 99
+
+
+def test_biases_offset_the_observed_sensors(gap_env):
+    state = gap_env.reset(jax.random.key(4))
+    state = jax.jit(gap_env.step)(state, jnp.full(18, 0.1))
+    task = gap_env.task_state(state.data, state.extras)
+    clean = gap_env.observation(gap_env.robot.sense(state.data), task)
+    np.testing.assert_allclose(state.obs[:42] - clean[:42], state.extras.bias, atol=1e-6)
+    np.testing.assert_array_equal(state.obs[42:], clean[42:])
 
 
 def test_commands_redrawn_on_schedule_from_the_key(env):
@@ -155,7 +225,9 @@ def test_bad_config_is_named(field, value):
 
 
 @pytest.mark.full
-def test_engine_parity_in_the_air():
+@pytest.mark.parametrize("gap", [{}, GAP], ids=["plain", "gap"])
+def test_engine_parity_in_the_air(gap):
     """MJX and MuJoCo C agree step by step before the feet touch down (on the ground the
-    solvers part from the first contact, as for the walker: tests/test_cengine.py)."""
-    check_engine_parity("HexapodJoystick-v0", steps=2, init_height=0.3)
+    solvers part from the first contact, as for the walker: tests/test_cengine.py), with
+    and without the delayed actions and sensor biases."""
+    check_engine_parity("HexapodJoystick-v0", steps=3, init_height=0.3, **gap)

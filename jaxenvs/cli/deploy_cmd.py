@@ -143,6 +143,17 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
     from jaxenvs.robots.interface import HostTask, LinkError, spec_of
 
     env = jaxenvs.make(args.env, physics="c")
+    # the trained env's fields that shape the observation (a task's observation_fields,
+    # e.g. HexapodJoystick-v0's action_delay_max) from the policy's metadata
+    trained = json.loads(policy.metadata.get("env_config", "{}"))
+    shaping = {k: trained[k] for k in getattr(env, "observation_fields", ()) if k in trained}
+    if shaping:
+        env = jaxenvs.make(args.env, physics="c", **shaping)
+    if str(env.observation_size) != policy.metadata["observation_size"]:
+        raise ValueError(
+            f"the policy takes {policy.metadata['observation_size']} observation values, "
+            f"{args.env} gives {env.observation_size}"
+        )
     if abs(float(policy.metadata["control_dt"]) - env.control_dt) > 1e-9:
         raise ValueError(f"the policy's control period differs from {args.env}'s")
     host = HostTask(env, args.seed)

@@ -99,7 +99,22 @@ def run_metadata(resolved: Any, env: Any, seed: int, normalize: bool) -> dict[st
         "control_dt": repr(float(env.control_dt)),
         "activation": ACTIVATION,
         "normalize_obs": "1" if normalize else "0",
+        "env_config": json.dumps(env_config_changes(resolved.env), sort_keys=True),
     }
+
+
+def env_config_changes(config: Any) -> dict[str, Any]:
+    """The fields of a task config that differ from its class's defaults (JSON types),
+    e.g. ``{"action_delay_max": 2}``: what ``jaxenvs deploy`` needs of the trained env."""
+    import dataclasses
+
+    default = type(config)()
+    out = {}
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if value != getattr(default, field.name):
+            out[field.name] = list(value) if isinstance(value, tuple) else value
+    return out
 
 
 def _actor_layers(params: Any, hidden: tuple[int, ...], where: Path) -> list[tuple[Any, Any]]:

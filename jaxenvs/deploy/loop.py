@@ -234,6 +234,8 @@ class _Step:
         self.frame_seq = -1
         self.truth: tuple[int, dict[str, np.ndarray]] | None = None
         self.action: np.ndarray | None = None
+        #: the last actions sent, the most recent first (zeros before the first)
+        self.sent: np.ndarray = host.zero_history
         self.task: Any = host.default_task_state
         self.pending: dict[int, float] = {}
 
@@ -282,8 +284,7 @@ def _one_step(
         value = st.commands.at(tick - t0)
         if value is not None:
             st.task = st.host.with_input(st.task, value)
-    last = st.host.zero_action if st.action is None else st.action
-    obs = st.host.observe(frame.readings, st.host.with_last_action(st.task, last))
+    obs = st.host.observe(frame.readings, st.host.with_action_history(st.task, st.sent))
     if not np.all(np.isfinite(obs)):
         raise DeployError("the observation is not finite")
     action, finite = policy.act(obs)
@@ -293,6 +294,7 @@ def _one_step(
     link.send(k, command)
     sent = time.monotonic()
     in_force, st.action, st.pending[k] = st.action, action, sent
+    st.sent = st.host.pushed(st.sent, action)
     late = sent - tick
     if late > opts.max_late_ms / 1e3:
         raise DeployError(f"overrun: step {k}'s command went out {late * 1e3:.1f} ms late")

@@ -247,8 +247,9 @@ class HostTask:
       truth (``qpos``, ``qvel``, ``mocap_pos``), for a simulated robot that publishes it;
     * a task's optional hooks: ``task_input_shape``, ``with_task_input(task, value)``
       (:meth:`with_input`: the operator's input, e.g. a joystick command, into the task
-      state), ``with_last_action(task, action)`` (:meth:`with_last_action`: for an
-      observation holding the last action) and ``tracking_errors(prev, data, task)``
+      state), ``action_history`` and ``with_action_history(task, actions)``
+      (:meth:`with_action_history`: for an observation holding the last
+      ``action_history`` actions) and ``tracking_errors(prev, data, task)``
       (:meth:`tracking`: errors of a ground-truth step against the input in force).
     """
 
@@ -262,7 +263,10 @@ class HostTask:
         self._act = jax.jit(env.actuator_action)
         self._truth_fns = jax.jit(self._of_truth)
         self._input = jax.jit(getattr(env, "with_task_input", lambda task, value: value))
-        self._last = jax.jit(getattr(env, "with_last_action", lambda task, action: task))
+        self._history = jax.jit(getattr(env, "with_action_history", lambda task, actions: task))
+        #: how many of the last actions the observation holds (the task's
+        #: ``action_history``; 1 for a task without one, which ignores them)
+        self.action_history = int(getattr(env, "action_history", 1))
         tracking = getattr(env, "tracking_errors", None)
         self._tracking = None if tracking is None else jax.jit(self._tracking_of(tracking))
         #: the observation needs a task state that a reset does not give (known after
@@ -273,6 +277,17 @@ class HostTask:
     def zero_action(self) -> np.ndarray:
         """An action of the policy's shape and dtype, all zeros."""
         return np.zeros(self.env.action_shape, np.int32 if self.env.discrete else np.float32)
+
+    @property
+    def zero_history(self) -> np.ndarray:
+        """``action_history`` zero actions (before the first command), the most recent
+        first."""
+        return np.stack([self.zero_action] * self.action_history)
+
+    @staticmethod
+    def pushed(history: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """``history`` (the most recent first) after ``action`` was sent."""
+        return np.concatenate([np.asarray(action, history.dtype)[None], history[:-1]])
 
     def warm(self, sizes: Mapping[str, int], truth: Mapping[str, np.ndarray]) -> tuple[int, ...]:
         """Compile every function once (before a real-time loop) on zero inputs of the
@@ -291,7 +306,7 @@ class HostTask:
             self.needs_input = True  # the task's state must come from the truth or a command
         import jax
 
-        task = self.with_last_action(task, self.zero_action)
+        task = self.with_action_history(task, self.zero_history)
         self.observe(readings, task)
         self.tracking(truth, truth, task)
         leaves = jax.tree.leaves(task)
@@ -301,7 +316,7 @@ class HostTask:
         shape = tuple(np.shape(leaves[0])) if shape is None else tuple(shape)
         value = np.zeros(shape, np.float32)  # a task input (--command)
         self.observe(
-            readings, self.with_last_action(self.with_input(task, value), self.zero_action)
+            readings, self.with_action_history(self.with_input(task, value), self.zero_history)
         )
         return shape
 
@@ -310,10 +325,11 @@ class HostTask:
         ``with_task_input``; without one the input is the whole task state)."""
         return self._input(task, value)
 
-    def with_last_action(self, task: Any, action: np.ndarray) -> Any:
-        """The task state after the loop sent ``action``, for a task whose observation
-        holds its last action (its ``with_last_action``); ``task`` itself otherwise."""
-        return self._last(task, action)
+    def with_action_history(self, task: Any, actions: np.ndarray) -> Any:
+        """The task state holding ``actions``, the last ``action_history`` actions the loop
+        sent (the most recent first), for a task whose observation holds them (its
+        ``with_action_history``); ``task`` itself otherwise."""
+        return self._history(task, actions)
 
     @staticmethod
     def _tracking_of(fn: Any) -> Any:

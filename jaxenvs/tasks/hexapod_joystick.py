@@ -3,10 +3,18 @@ speed in the body frame, yaw rate), from what the robot measures.
 
 The observation is :meth:`HexapodJoystick.observation` of the robot's non-privileged
 readings (:meth:`~jaxenvs.robots.base.Robot.sense`: encoders and IMU) and the task's own
-state (:meth:`HexapodJoystick.task_state`: the command and the last action), so a loop
-driving a real hexapod computes it from readings received over a link with
-``observation(readings, (command, last_action))``. Body velocities, the world position
-and the world yaw are privileged: the reward uses them, the policy does not see them.
+state (:meth:`HexapodJoystick.task_state`: the command and the last ``action_delay_max +
+1`` actions), so a loop driving a real hexapod computes it from readings received over a
+link with ``observation(readings, (command, actions))`` (:meth:`with_action_history` puts
+the actions it sent into the task state). Body velocities, the world position and the
+world yaw are privileged: the reward uses them, the policy does not see them.
+
+For the gap between simulation and a robot driven over a link (``jaxenvs deploy``), the
+config can delay each env's actions by 0 to ``action_delay_max`` control steps (a delay
+drawn per env at reset), and offset each env's joint angle and gyro readings by constant
+biases drawn at reset (``joint_bias``, ``gyro_bias``); the servos' strength (kp) is drawn
+per env by ``gain_scale`` when params are randomised. All draws come from the hooks' keys,
+so MJX and MuJoCo C physics see the same ones.
 
 Physics as ``HexapodWalk-v0`` (:mod:`jaxenvs.tasks.hexapod`): six foot-floor contact
 pairs, Euler with implicit damping, the CG solver with ``solver_iterations`` and
@@ -35,12 +43,14 @@ from jaxenvs.tasks.hexapod import HexapodRandomization, _solver_edit
 if TYPE_CHECKING:
     from mujoco import mjx
 
-#: the observation noise at ``obs_noise=1``, per entry: joint angles (rad), joint
-#: velocities (rad/s), gravity direction, gyro (rad/s); the last action and the command
-#: are known exactly
+#: the observation noise at ``obs_noise=1`` of the 42 sensor entries: joint angles (rad),
+#: joint velocities (rad/s), gravity direction, gyro (rad/s); the actions and the command
+#: that follow them are known exactly (no noise)
 OBS_NOISE = np.concatenate(
-    [np.full(18, 0.01), np.full(18, 0.3), np.full(3, 0.02), np.full(3, 0.05), np.zeros(21)]
+    [np.full(18, 0.01), np.full(18, 0.3), np.full(3, 0.02), np.full(3, 0.05)]
 ).astype(np.float32)
+#: the number of sensor entries at the head of the observation
+SENSOR_SIZE = 42
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,6 +87,12 @@ class JoystickConfig(HexapodRandomization):
       push_probability: probability per control step of a push ...
       push_speed: ... which adds a horizontal velocity of this magnitude (m/s) in a
         uniformly random direction to the body.
+      action_delay_max: each env applies the action of ``d`` control steps ago, ``d``
+        drawn uniformly in 0..``action_delay_max`` at reset (0: no delay). The
+        observation holds the last ``action_delay_max + 1`` actions.
+      joint_bias: each env's joint angle readings are offset by constants drawn at reset
+        uniformly in +- this (rad; 0: none), in the observation only (as ``obs_noise``).
+      gyro_bias: ... and its gyro readings by constants uniform in +- this (rad/s).
     """
 
     episode_length: int = 1000
@@ -105,6 +121,9 @@ class JoystickConfig(HexapodRandomization):
     obs_noise: float = 0.0
     push_probability: float = 0.0
     push_speed: float = 0.0
+    action_delay_max: int = 0
+    joint_bias: float = 0.0
+    gyro_bias: float = 0.0
 
     def validate(self) -> None:
         super().validate()
@@ -131,6 +150,9 @@ class JoystickConfig(HexapodRandomization):
             "action_noise",
             "obs_noise",
             "push_speed",
+            "action_delay_max",
+            "joint_bias",
+            "gyro_bias",
         )
         for name in nonneg:
             require(getattr(self, name) >= 0, name, "must be >= 0")
@@ -150,14 +172,20 @@ class JoystickExtras(struct.PyTreeNode):
     Attributes:
       command: (vx, vy, yaw rate) in m/s, m/s, rad/s.
       since: control steps since the command was drawn.
-      action: the last action (18; as the policy gave it, before any action noise).
-      prev_action: the action before it (18).
+      actions: the last ``action_delay_max + 1`` actions (each 18; as the policy gave
+        them, before any delay or action noise), the most recent first.
+      prev_action: the action before ``actions[0]`` (18).
+      delay: this env's action delay (control steps, int32), drawn at reset.
+      bias: this env's sensor offsets (:data:`SENSOR_SIZE`; joint angles and gyro, zero
+        elsewhere), drawn at reset.
     """
 
     command: jax.Array
     since: jax.Array
-    action: jax.Array
+    actions: jax.Array
     prev_action: jax.Array
+    delay: jax.Array
+    bias: jax.Array
 
 
 def heading(quat: jax.Array) -> jax.Array:
@@ -193,15 +221,20 @@ def sample_command(u: jax.Array, config: JoystickConfig) -> jax.Array:
 class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     """``HexapodJoystick-v0``: follow a velocity command.
 
-    * Observation (63), :meth:`observation` of the robot's readings: 18 joint angles (rad;
-      legs lf, lm, lr, rf, rm, rr, each hip, femur, tibia: the encoders), 18 joint
-      velocities (rad/s, the encoders), gravity direction in the body frame (3, from the
-      IMU's ``imu_quat``), body angular velocity in the body frame (3, rad/s, the IMU's
-      ``imu_gyro``), the last action (18), the command (3: vx, vy in m/s, yaw rate in
-      rad/s). With ``obs_noise`` > 0, plus Gaussian noise of std ``obs_noise * OBS_NOISE``
-      (sensors only). Nothing privileged: no position, world yaw or linear velocity.
-    * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range
-      (with ``action_noise`` > 0, Gaussian noise of that std added, then clipped).
+    * Observation (``45 + 18 * (action_delay_max + 1)``: 63 without delay),
+      :meth:`observation` of the robot's readings: 18 joint angles (rad; legs lf, lm, lr,
+      rf, rm, rr, each hip, femur, tibia: the encoders), 18 joint velocities (rad/s, the
+      encoders), gravity direction in the body frame (3, from the IMU's ``imu_quat``),
+      body angular velocity in the body frame (3, rad/s, the IMU's ``imu_gyro``), the last
+      ``action_delay_max + 1`` actions the policy gave (18 each, the most recent first),
+      the command (3: vx, vy in m/s, yaw rate in rad/s). In the env the sensor entries
+      also carry the env's constant biases (``joint_bias``, ``gyro_bias``) and, with
+      ``obs_noise`` > 0, Gaussian noise of std ``obs_noise * OBS_NOISE``; the actions and
+      the command are exact. Nothing privileged: no position, world yaw or linear velocity.
+    * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range.
+      The env applies the action of ``d`` steps ago (``d`` the env's delay, uniform in
+      0..``action_delay_max`` at reset; before the first ``d`` steps, zero actions);
+      with ``action_noise`` > 0, Gaussian noise of that std is added to it, then clipped.
     * Command: (vx, vy, yaw rate) uniform in ``vx_range`` x ``vy_range`` x ``yaw_range``,
       all zero with probability ``zero_probability``; drawn at reset and redrawn every
       ``command_interval`` steps (5 s), from the reset's and the act hook's keys.
@@ -218,7 +251,8 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     * Termination: height < ``min_height`` or the up axis' z-component < ``min_upright``
       (as ``HexapodWalk-v0``). Truncation: ``episode_length`` steps.
     * Start: body at 0.14 m with a random yaw, joints uniform in +-0.05 rad around the
-      stance, at rest; last action zero.
+      stance, at rest; past actions zero; the delay and the sensor biases drawn (from
+      the reset key, only where the config enables them).
     * Pushes: with probability ``push_probability`` per step, a horizontal velocity of
       ``push_speed`` in a random direction is added to the body before the step.
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s.
@@ -230,8 +264,11 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     metric_keys = ("lin_error", "yaw_error", "energy")
     #: the test battery's vmap-vs-single tolerance (as ``HexapodWalk-v0``)
     vmap_atol = 1e-2
-    observation_size = 63
+    observation_size = 63  # the size without delay; an instance has its config's
     action_size = 18
+    #: the config fields the observation's layout depends on (an exported policy's
+    #: metadata carries them: ``jaxenvs deploy`` builds the task with them)
+    observation_fields = ("action_delay_max",)
 
     def __init__(self, config: JoystickConfig | None = None) -> None:
         config = config or JoystickConfig()
@@ -244,6 +281,9 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         super().__init__(config, sim)
         self._torso = mujoco.mj_name2id(sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, "torso")
         self._params = JoystickParams(model=self.robot.default_fields(sim))
+        #: the number of past actions in the observation (and the delay buffer's length)
+        self.action_history = config.action_delay_max + 1
+        self.observation_size = SENSOR_SIZE + 18 * self.action_history + 3
 
     def _init(self, key: jax.Array, params: JoystickParams) -> tuple[mjx.Data, JoystickExtras]:
         u = jax.random.uniform(key, (23,))  # one draw: see HexapodWalk._init
@@ -253,13 +293,24 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         joints = c.init_joint_noise * (2.0 * u[1:19] - 1.0)
         qpos = self.robot.qpos(jnp.array([0.0, 0.0, c.init_height]), quat, joints)
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24))
-        zero = jnp.zeros(18)
         extras = JoystickExtras(
             command=sample_command(u[19:23], c),
             since=jnp.zeros((), jnp.int32),
-            action=zero,
-            prev_action=zero,
+            actions=jnp.zeros((self.action_history, 18)),
+            prev_action=jnp.zeros(18),
+            delay=jnp.zeros((), jnp.int32),
+            bias=jnp.zeros(SENSOR_SIZE),
         )
+        # the gap's draws from a key of their own, so that the draws above are those of a
+        # config without them
+        gap = jax.random.uniform(jax.random.fold_in(key, 1), (22,))
+        if c.action_delay_max > 0:
+            delay = jnp.floor(gap[0] * (c.action_delay_max + 1)).astype(jnp.int32)
+            extras = extras.replace(delay=jnp.minimum(delay, c.action_delay_max))
+        if c.joint_bias > 0 or c.gyro_bias > 0:
+            joint = c.joint_bias * (2.0 * gap[1:19] - 1.0)
+            gyro = c.gyro_bias * (2.0 * gap[19:22] - 1.0)
+            extras = extras.replace(bias=jnp.concatenate([joint, jnp.zeros(21), gyro]))
         return data, extras
 
     def _act(
@@ -272,10 +323,13 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     ) -> tuple[mjx.Data, JoystickExtras]:
         c = self.config
         u = jax.random.uniform(key, (7,))  # command (4), push (3)
+        actions = jnp.concatenate([action[None], extras.actions[:-1]])
         applied = action
+        if c.action_delay_max > 0:  # the action of `delay` steps ago
+            applied = jnp.take(actions, extras.delay, axis=0)
         if c.action_noise > 0:
             noise = c.action_noise * jax.random.normal(jax.random.fold_in(key, 1), action.shape)
-            applied = jnp.clip(action + noise, -1.0, 1.0)
+            applied = jnp.clip(applied + noise, -1.0, 1.0)
         if c.push_probability > 0 and c.push_speed > 0:
             angle = 2.0 * math.pi * u[5]
             kick = c.push_speed * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
@@ -284,31 +338,33 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         data = self.sim.step(self.sim.model_with(params.model), data, self.robot.command(applied))
         since = extras.since + 1
         redraw = since >= c.command_interval
-        extras = JoystickExtras(
+        extras = extras.replace(
             command=jnp.where(redraw, sample_command(u[:4], c), extras.command),
             since=jnp.where(redraw, 0, since),
-            action=action,
-            prev_action=extras.action,
+            actions=actions,
+            prev_action=extras.actions[0],
         )
         return data, extras
 
     def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, jax.Array]:
-        """The task's own input to :meth:`observation`: (command (3), last action (18))."""
+        """The task's own input to :meth:`observation`: (command (3), the last
+        ``action_delay_max + 1`` actions (``(action_delay_max + 1, 18)``, the most recent
+        first))."""
         del data
-        return extras.command, extras.action
+        return extras.command, extras.actions
 
     def observation(self, readings: Readings, task: tuple[jax.Array, jax.Array]) -> jax.Array:
-        """The noiseless observation (the layout in the class docstring) of the robot's
-        ``readings`` (only its non-privileged sensors are read) and ``(command,
-        last_action)``."""
-        command, last_action = task
+        """The noiseless, unbiased observation (the layout in the class docstring) of the
+        robot's ``readings`` (only its non-privileged sensors are read) and ``(command,
+        actions)``."""
+        command, actions = task
         return jnp.concatenate(
             [
                 self.robot.joint_pos(readings),
                 self.robot.joint_vel(readings),
                 gravity_in_body(readings["imu_quat"]),
                 readings["imu_gyro"],
-                last_action,
+                jnp.reshape(actions, (18 * self.action_history,)),
                 command,
             ]
         )
@@ -316,9 +372,14 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     def _observe(
         self, key: jax.Array, data: mjx.Data, extras: JoystickExtras, params: JoystickParams
     ) -> jax.Array:
+        c = self.config
         obs = self.observation(self.robot.sense(data), self.task_state(data, extras))
-        if self.config.obs_noise > 0:
-            obs = obs + self.config.obs_noise * OBS_NOISE * jax.random.normal(key, obs.shape)
+        exact = jnp.zeros(obs.shape[0] - SENSOR_SIZE)  # the actions and the command
+        if c.joint_bias > 0 or c.gyro_bias > 0:
+            obs = obs + jnp.concatenate([extras.bias, exact])
+        if c.obs_noise > 0:
+            std = c.obs_noise * jnp.concatenate([jnp.asarray(OBS_NOISE), exact])
+            obs = obs + std * jax.random.normal(key, obs.shape)
         return obs
 
     #: the shape of the task's input in a deploy loop (``jaxenvs deploy --command``): the
@@ -328,15 +389,16 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     def with_task_input(
         self, task: tuple[jax.Array, jax.Array], command: jax.Array
     ) -> tuple[jax.Array, jax.Array]:
-        """The task state ``(command, last_action)`` with ``command`` in force (a deploy
-        loop's task input)."""
+        """The task state ``(command, actions)`` with ``command`` in force (a deploy loop's
+        task input)."""
         return jnp.asarray(command, jnp.float32), task[1]
 
-    def with_last_action(
-        self, task: tuple[jax.Array, jax.Array], action: jax.Array
+    def with_action_history(
+        self, task: tuple[jax.Array, jax.Array], actions: jax.Array
     ) -> tuple[jax.Array, jax.Array]:
-        """The task state ``(command, last_action)`` after a deploy loop sent ``action``."""
-        return task[0], jnp.asarray(action, jnp.float32)
+        """The task state ``(command, actions)`` with ``actions`` (``(action_history,
+        18)``, the most recent first: the last actions a deploy loop sent)."""
+        return task[0], jnp.asarray(actions, jnp.float32)
 
     def tracking_errors(
         self, prev: mjx.Data, data: mjx.Data, task: tuple[jax.Array, jax.Array]
@@ -389,7 +451,7 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         energy = jnp.sum(jnp.abs(data.actuator_force * self.robot.joint_vel(now)))
         spin = jnp.sum(jnp.square(now["imu_gyro"][:2]))
         vz = now["torso_vel"][2]
-        rate = jnp.sum(jnp.square(extras.action - extras.prev_action))
+        rate = jnp.sum(jnp.square(extras.actions[0] - extras.prev_action))
         up_z = quat_to_mat(now["imu_quat"])[2, 2]
         reward = (
             c.lin_weight * jnp.exp(-lin_sq / c.lin_sigma)
