@@ -83,15 +83,16 @@ def c_memory(recs: list[Rec]) -> Cells:
     return cells
 
 
-def _sweep_files(cores: int) -> tuple[str, ...]:
+def _sweep_files(machine: str) -> tuple[str, ...]:
     return tuple(
-        f"engines_sweep_cpu{cores}_{t}" for t in ("cartpolev0", "reacherv0", "hexapodwalkv0")
+        f"engines_sweep_{machine}_{t}" for t in ("cartpolev0", "reacherv0", "hexapodwalkv0")
     )
 
 
 TABLES = {
-    "engines-sweep-cpu16": Table(_sweep_files(16), engines_sweep),
-    "engines-sweep-cpu2": Table(_sweep_files(2), engines_sweep),
+    "engines-sweep-cpu16": Table(_sweep_files("cpu16"), engines_sweep),
+    "engines-sweep-cpu16-split": Table(_sweep_files("cpu16split"), engines_sweep),
+    "engines-sweep-cpu2": Table(_sweep_files("cpu2"), engines_sweep),
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
     "c-memory-cpu2": Table(("c_memory_cpu2",), c_memory),
 }

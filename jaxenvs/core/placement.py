@@ -122,21 +122,31 @@ def check_divisible(num_envs: int, devices: int, hint: str = "") -> None:
         )
 
 
+#: the fewest envs a device steps in a C batch spread by default: on a 16-core host (8
+#: devices) a C batch of 16 or 256 envs split eight ways stepped 2.2-2.3x slower than the
+#: same batch on one device (benchmarks/NOTES.md, "The C engine over the host devices")
+C_ENVS_PER_DEVICE = 512
+
+
 def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
     """How many local devices a batch of ``num_envs`` envs is spread over.
 
     ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
     host devices or GPUs), or as many of them as ``num_envs`` divides over evenly, with a
-    warning when that is fewer. The C engine's batches spread the same way (``physics``
-    is accepted for callers that name it, and changes nothing). An explicit count must
-    divide ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.
+    warning when that is fewer. Under the C engine (``physics="c"``) each device gets at
+    least :data:`C_ENVS_PER_DEVICE` envs: a smaller batch spreads over fewer devices, one
+    below that size. An explicit count must divide ``num_envs`` and exist, or
+    ``ValueError`` names the nearest valid sizes.
     """
-    available = jax.local_device_count()
+    local = jax.local_device_count()
+    available = local
+    if devices is None and physics == "c":
+        available = max(1, min(local, num_envs // C_ENVS_PER_DEVICE))
     if devices is None:
         if available == 1:
             return 1
         n = divisible_devices(num_envs, available)
-        if n < available and num_envs >= available:
+        if n < available == local and num_envs >= available:
             lower = num_envs - num_envs % available
             warnings.warn(
                 f"num_envs={num_envs} does not divide over the {available} local devices: "

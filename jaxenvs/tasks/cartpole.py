@@ -66,10 +66,10 @@ class CartpoleRandomization(CartpoleRanges, TaskConfig):
 class _CartpoleTask(RobotTask):
     """What the four cartpole tasks share: the robot, params, the engine choice."""
 
-    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
+    #: physics="auto" on a CPU: C, and MJX from 256 envs (benchmarks/RESULTS.md,
     #: "physics='auto' on a CPU")
     cpu_physics = "c"
-    cpu_mjx_from: int | None = 4096
+    cpu_mjx_from: int | None = 256
     robot: Cartpole
 
 
