@@ -13,7 +13,8 @@ ground truth (body-frame mean velocity over each control period, as the task's
 
 A run passes when the robot did not fall (the task's termination) and both errors are
 within :data:`TOLERANCE` times the policy's figures in simulation (seed 0 of
-``ppo_joystick_seeds_h200``: 20 s episodes, commands redrawn over the full range). One row
+``ppo_joystick_seeds_gap_h100``: 20 s episodes, commands redrawn over the full range, the
+run's action delays and sensor biases drawn per env). One row
 per run (with its link settings), and one median row per link setting. ``--gif`` draws
 the first run from its log (``/robot/state``, every ``--every`` control steps).
 
@@ -47,7 +48,7 @@ SCRIPT = (
 #: the errors may be this many times the simulation's
 TOLERANCE = 1.5
 #: the result file and seed whose simulation figures are the reference
-REFERENCE = ("ppo_joystick_seeds_h200", 0, "mjx")
+REFERENCE = ("ppo_joystick_seeds_gap_h100", 0, "mjx")
 NUMBERS = (
     "steps",
     "lin_rms",

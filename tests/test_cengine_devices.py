@@ -80,9 +80,14 @@ def _run(tmp: Path, native: bool) -> tuple[dict, dict]:
     return json.loads(Path(f"{out}.json").read_text()), dict(np.load(f"{out}.npz"))
 
 
-@pytest.fixture(scope="module", params=[True, False], ids=["native", "callback"])
-def two_devices(request, tmp_path_factory):
-    return request.param, *_run(tmp_path_factory.mktemp("cdevices"), request.param)
+@pytest.fixture(scope="module")
+def native_run(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("cdevices"), True)
+
+
+@pytest.fixture(scope="module")
+def callback_run(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("cdevices_callback"), False)
 
 
 def _check_bit_identical(arrays: dict, task: str) -> None:
@@ -94,11 +99,21 @@ def _check_bit_identical(arrays: dict, task: str) -> None:
         np.testing.assert_array_equal(b, a, err_msg=key)
 
 
-def test_c_batch_over_two_devices_is_bit_identical_and_split(two_devices):
+def test_c_batch_over_two_devices_is_bit_identical_and_split(native_run):
     """8 CartPole envs under C spread over 2 host devices (``devices=2``): the same states as
-    on one device, bit for bit, through auto-resets. Native: each device's engine call
-    sees 4 envs (not the whole batch) and half of the engine's threads."""
-    native, res, arrays = two_devices
+    on one device, bit for bit, through auto-resets; each device's engine call sees 4 envs
+    (not the whole batch) and half of the engine's threads."""
+    _check_split(True, *native_run)
+
+
+@pytest.mark.full  # a second 2-device subprocess
+def test_callback_path_over_two_devices_is_bit_identical_unsplit(callback_run):
+    """The Python-callback path (``JAXENVS_NATIVE=0``) on 2 devices: the same states as on
+    one device, its call unpartitioned (one device steps the whole batch)."""
+    _check_split(False, *callback_run)
+
+
+def _check_split(native: bool, res: dict, arrays: dict) -> None:
     t = "CartPole-v0_"
     assert res["devices"] == 2
     assert (res[t + "devices_spread"], res[t + "shards_spread"]) == (2, 2)
@@ -123,11 +138,9 @@ def test_c_batch_over_two_devices_is_bit_identical_and_split(two_devices):
         assert all(re.search(rf"threads = {threads} ", c) for c in one), one[0][-400:]
 
 
-def test_walker_c_over_two_devices_matches_one(two_devices):
+def test_walker_c_over_two_devices_matches_one(native_run):
     """The hexapod walker (contacts, several bodies) under C on 2 devices: bit-identical."""
-    native, res, arrays = two_devices
-    if not native:
-        pytest.skip("the walker runs on the native engine only (the callback run: CartPole)")
+    res, arrays = native_run
     t = "HexapodWalk-v0_"
     assert (res[t + "devices_spread"], res[t + "shards_spread"]) == (2, 2)
     _check_bit_identical(arrays, "HexapodWalk-v0")

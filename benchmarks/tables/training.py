@@ -263,4 +263,5 @@ TABLES = {
     ),
     "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
     "joystick-seeds": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
+    "joystick-seeds-gap": Table(("ppo_joystick_seeds_gap_h100",), joystick_seeds),
 }
