@@ -61,9 +61,8 @@ _SCRIPT = textwrap.dedent(
 _RUNS = [("CartPole-v0", 8, 24), ("HexapodWalk-v0", 4, 4)]
 
 
-def _run(tmp: Path, native: bool) -> tuple[dict, dict]:
-    """Every run of :data:`_RUNS` (the callback path: CartPole only) in one subprocess."""
-    runs = _RUNS if native else _RUNS[:1]
+def _run(tmp: Path, native: bool, runs: list) -> tuple[dict, dict]:
+    """The ``runs`` (of :data:`_RUNS`) in one subprocess."""
     out = tmp / "res"
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
     env.pop("JAX_NUM_CPU_DEVICES", None)
@@ -82,12 +81,17 @@ def _run(tmp: Path, native: bool) -> tuple[dict, dict]:
 
 @pytest.fixture(scope="module")
 def native_run(tmp_path_factory):
-    return _run(tmp_path_factory.mktemp("cdevices"), True)
+    return _run(tmp_path_factory.mktemp("cdevices"), True, _RUNS[:1])
 
 
 @pytest.fixture(scope="module")
 def callback_run(tmp_path_factory):
-    return _run(tmp_path_factory.mktemp("cdevices_callback"), False)
+    return _run(tmp_path_factory.mktemp("cdevices_callback"), False, _RUNS[:1])
+
+
+@pytest.fixture(scope="module")
+def walker_run(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("cdevices_walker"), True, _RUNS[1:])
 
 
 def _check_bit_identical(arrays: dict, task: str) -> None:
@@ -138,9 +142,10 @@ def _check_split(native: bool, res: dict, arrays: dict) -> None:
         assert all(re.search(rf"threads = {threads} ", c) for c in one), one[0][-400:]
 
 
-def test_walker_c_over_two_devices_matches_one(native_run):
+@pytest.mark.full  # the walker's C programs, twice, in a third subprocess
+def test_walker_c_over_two_devices_matches_one(walker_run):
     """The hexapod walker (contacts, several bodies) under C on 2 devices: bit-identical."""
-    res, arrays = native_run
+    res, arrays = walker_run
     t = "HexapodWalk-v0_"
     assert (res[t + "devices_spread"], res[t + "shards_spread"]) == (2, 2)
     _check_bit_identical(arrays, "HexapodWalk-v0")

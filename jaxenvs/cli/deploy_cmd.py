@@ -126,6 +126,12 @@ def run(args: argparse.Namespace) -> int:
             f"{args.policy} is a policy of {policy.metadata['env_id']}, not {args.env}"
         )
     commands = loop.CommandInput(args.task_input) if args.task_input else None
+    if commands is not None:  # a script of the wrong size fails before anything starts
+        from jaxenvs import registry
+
+        shape = getattr(registry.spec(args.env).factory, "task_input_shape", None)
+        if shape is not None:
+            commands.expect(tuple(shape), args.env)
     signal.signal(signal.SIGTERM, _interrupt)
     proc = _start_sim(args) if args.robot == "sim" else None
     try:
