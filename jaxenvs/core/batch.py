@@ -68,7 +68,10 @@ class BatchedEnv:
     config = property(lambda self: self.env.config)
     scan_unroll = property(lambda self: self.env.scan_unroll)
 
-    def _reset_batch(self, keys: jax.Array, params: Params) -> State:
+    def fresh_starts(self, keys: jax.Array, params: Params = None) -> State:
+        """Fresh starts of every env, env i's drawn with ``keys[i]`` as a reset and the
+        auto-reset draw them (with ``randomize=True`` and no ``params``, its own params
+        too); not spread over the batch's devices."""
         if self.randomize and params is None:
             # one split per env for its reset's 3 keys and its params key: the state is
             # env.reset(key, params)'s, the params drawn from split(key, 4)[3]
@@ -83,9 +86,9 @@ class BatchedEnv:
         check_key(key, f"batched {type(self.env).__name__}.reset")
         keys = jax.random.split(key, self.num_envs)
         if self.mesh is None:
-            return self._reset_batch(keys, params)
+            return self.fresh_starts(keys, params)
         return placement.spread(
-            self.mesh, lambda k, _, p: self._reset_batch(k, p), keys, (), params
+            self.mesh, lambda k, _, p: self.fresh_starts(k, p), keys, (), params
         )
 
     def step(self, state: State, action: jax.Array, params: Params = None) -> State:
@@ -108,7 +111,7 @@ class BatchedEnv:
         done = nxt.done
 
         def reset_done(nxt: State) -> State:
-            fresh = self._reset_batch(nxt.key, params)
+            fresh = self.fresh_starts(nxt.key, params)
 
             def pick(new: jax.Array, old: jax.Array) -> jax.Array:
                 mask = done.reshape(done.shape + (1,) * (old.ndim - 1))

@@ -81,12 +81,7 @@ def _build_single(env: Env) -> Programs:
 def _fresh(task: BatchedEnv, keys: jax.Array) -> State:
     """Fresh starts of every env of ``task``, env i's drawn with ``keys[i]`` (and, for a
     randomised batch, its own params), as the batched env's auto-reset draws them."""
-    env = task.env
-    if not task.randomize:
-        return jax.vmap(env.reset)(keys)
-    keys, pkeys = jnp.moveaxis(jax.vmap(jax.random.split)(keys), 1, 0)
-    params = jax.vmap(env.sample_params)(pkeys)
-    return jax.vmap(env.reset)(keys, params).replace(params=params)
+    return task.fresh_starts(keys)
 
 
 def _restart(task: BatchedEnv, state: State, mask: jax.Array, keys: jax.Array) -> State:
