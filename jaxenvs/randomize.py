@@ -16,9 +16,9 @@ quantity, a ``(low, high)`` pair (the robot's ranges come from the robot's
 Every helper is a pure function of an explicit key; factors are drawn independently per
 element (per body, per dof, per actuator) unless an index mask restricts them. A sampler
 that draws several quantities should draw them with :func:`uniforms` (one PRNG call for
-all of them) and apply them with :func:`scaled`: on a CPU each PRNG call is a loop that
-XLA compiles on its own, so a randomised reset's compile time and memory grow with the
-number of calls, not with the number of values drawn. Configs
+all of them) and apply them with :func:`scaled` or :func:`shifted`: on a CPU each PRNG
+call is a loop that XLA compiles on its own, so a randomised reset's compile time and
+memory grow with the number of calls, not with the number of values drawn. Configs
 validate their ranges with :func:`check_range` so that a bad range fails at ``make``
 time with the key's name, not as NaNs later.
 """
@@ -65,11 +65,15 @@ def check_range(
         require(high <= max_high, name, f"needs high <= {max_high}, got {value!r}")
 
 
+def _in_range(u: jax.Array, value_range: Range) -> jax.Array:
+    """Uniforms ``u`` in [0, 1) mapped onto ``[low, high]`` (exactly ``low`` if equal)."""
+    low, high = value_range
+    return jnp.float32(low) + u * jnp.float32(high - low)
+
+
 def uniform(key: jax.Array, value_range: Range, shape: tuple[int, ...] = ()) -> jax.Array:
     """Float32 values drawn uniformly in ``[low, high]`` (exactly ``low`` if equal)."""
-    low, high = value_range
-    u = jax.random.uniform(key, shape, jnp.float32)
-    return jnp.float32(low) + u * jnp.float32(high - low)
+    return _in_range(jax.random.uniform(key, shape, jnp.float32), value_range)
 
 
 def uniforms(key: jax.Array, draws: Sequence[tuple[Range, tuple[int, ...]]]) -> list[jax.Array]:
@@ -80,9 +84,8 @@ def uniforms(key: jax.Array, draws: Sequence[tuple[Range, tuple[int, ...]]]) -> 
     sizes = [math.prod(shape) for _, shape in draws]
     u = jax.random.uniform(key, (sum(sizes),), jnp.float32)
     out, start = [], 0
-    for ((low, high), shape), size in zip(draws, sizes, strict=True):
-        part = u[start : start + size].reshape(shape)
-        out.append(jnp.float32(low) + part * jnp.float32(high - low))
+    for (value_range, shape), size in zip(draws, sizes, strict=True):
+        out.append(_in_range(u[start : start + size].reshape(shape), value_range))
         start += size
     return out
 
@@ -93,6 +96,13 @@ def scaled(value: jax.Array, factor: jax.Array, mask: jax.Array | None = None) -
     value = jnp.asarray(value)
     factor = factor.reshape(factor.shape + (1,) * (value.ndim - factor.ndim))
     return _masked((value * factor).astype(value.dtype), value, mask)
+
+
+def shifted(value: jax.Array, delta: jax.Array, mask: jax.Array | None = None) -> jax.Array:
+    """``value`` plus ``delta`` (of ``value``'s shape), in ``value``'s dtype; rows outside
+    ``mask`` keep their value."""
+    value = jnp.asarray(value)
+    return _masked((value + delta).astype(value.dtype), value, mask)
 
 
 def _masked(new: jax.Array, old: jax.Array, mask: jax.Array | None) -> jax.Array:
@@ -119,8 +129,7 @@ def offset(
 ) -> jax.Array:
     """``value`` plus an amount uniform in ``offset_range``, drawn per element."""
     value = jnp.asarray(value)
-    delta = uniform(key, offset_range, value.shape)
-    return _masked((value + delta).astype(value.dtype), value, mask)
+    return shifted(value, uniform(key, offset_range, value.shape), mask)
 
 
 def scale_mass(
@@ -166,8 +175,6 @@ def scale_fields(
     draws = jax.vmap(lambda k: jax.random.uniform(k, (longest,), jnp.float32))(subs)
     for i, name in enumerate(names):
         value = jnp.asarray(fields[name])
-        low, high = ranges[name]
         u = draws[i, : value.shape[0] if value.ndim else 1].reshape(value.shape[:1])
-        factor = jnp.float32(low) + u * jnp.float32(high - low)
-        out[name] = scaled(value, factor, masks.get(name))
+        out[name] = scaled(value, _in_range(u, ranges[name]), masks.get(name))
     return out

@@ -76,7 +76,7 @@ class Cartpole(Robot):
         )
         out["body_mass"] = randomize.scaled(out["body_mass"], mass)
         out["body_inertia"] = randomize.scaled(out["body_inertia"], mass)
-        out["dof_damping"] = (out["dof_damping"] + damping).astype(out["dof_damping"].dtype)
+        out["dof_damping"] = randomize.shifted(out["dof_damping"], damping)
         out["actuator_gear"] = randomize.scaled(out["actuator_gear"], gear)
         return out
 
