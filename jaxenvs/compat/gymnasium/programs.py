@@ -78,21 +78,17 @@ def _build_single(env: Env) -> Programs:
     )
 
 
-def _fresh(task: BatchedEnv, keys: jax.Array) -> State:
-    """Fresh starts of every env of ``task``, env i's drawn with ``keys[i]`` (and, for a
-    randomised batch, its own params), as the batched env's auto-reset draws them."""
-    return task.fresh_starts(keys)
-
-
 def _restart(task: BatchedEnv, state: State, mask: jax.Array, keys: jax.Array) -> State:
     """``state`` with the envs where ``mask`` holds replaced by fresh starts drawn with
-    their ``keys``: the whole State, so reward 0, flags False and a new episode's info."""
+    their ``keys`` as the batched env's auto-reset draws them
+    (:meth:`~jaxenvs.core.BatchedEnv.fresh_starts`): the whole State, so reward 0, flags
+    False and a new episode's info."""
 
     def pick(new: jax.Array, old: jax.Array) -> jax.Array:
         return jnp.where(mask.reshape(mask.shape + (1,) * (old.ndim - 1)), new, old)
 
     def merge(old: State) -> State:
-        fresh = _fresh(task, keys)
+        fresh = task.fresh_starts(keys)
         data = task.env.sim.select_data(pick, fresh.data, old.data)
         rest = jax.tree.map(pick, fresh.replace(data=None), old.replace(data=None))
         return rest.replace(data=data)
