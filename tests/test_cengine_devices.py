@@ -8,15 +8,13 @@ writes arrays, compared here with the same batch on one device.
 from __future__ import annotations
 
 import json
-import os
 import re
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
+from host_devices import run_with_devices
 
 _SCRIPT = textwrap.dedent(
     """
@@ -64,18 +62,8 @@ _RUNS = [("CartPole-v0", 8, 24), ("HexapodWalk-v0", 4, 4)]
 def _run(tmp: Path, native: bool, runs: list) -> tuple[dict, dict]:
     """The ``runs`` (of :data:`_RUNS`) in one subprocess."""
     out = tmp / "res"
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    env.pop("JAX_NUM_CPU_DEVICES", None)
-    if not native:
-        env["JAXENVS_NATIVE"] = "0"
-    proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT, str(out), json.dumps(runs)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    env = {} if native else {"JAXENVS_NATIVE": "0"}
+    run_with_devices(2, _SCRIPT, [str(out), json.dumps(runs)], env)
     return json.loads(Path(f"{out}.json").read_text()), dict(np.load(f"{out}.npz"))
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from host_devices import run_with_devices
 
 from jaxenvs import machine
 from jaxenvs.core import placement
@@ -91,16 +92,7 @@ _SCRIPT = textwrap.dedent(
 @pytest.fixture(scope="module")
 def four_devices(tmp_path_factory):
     out = tmp_path_factory.mktemp("devices") / "res"
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4"}
-    env.pop("JAX_NUM_CPU_DEVICES", None)
-    proc = subprocess.run(
-        [sys.executable, "-c", _SCRIPT, str(out)],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    run_with_devices(4, _SCRIPT, [str(out)])
     return json.loads(Path(f"{out}.json").read_text()), dict(np.load(f"{out}.npz"))
 
 

@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import os
-import subprocess
-import sys
 
 import gymnasium as gym
 import jax
@@ -16,6 +13,7 @@ import requires
 from gymnasium.error import ResetNeeded
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
+from host_devices import run_with_devices
 
 import jaxenvs
 from jaxenvs import registry
@@ -596,12 +594,7 @@ np.testing.assert_array_equal(runs[2], runs[1])
 
 @pytest.mark.full  # a 2-device subprocess
 def test_next_step_vector_env_spread_over_devices_is_bit_identical():
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
-    env.pop("JAX_NUM_CPU_DEVICES", None)
-    proc = subprocess.run(
-        [sys.executable, "-c", _TWO_DEVICES], env=env, capture_output=True, text=True, timeout=600
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    run_with_devices(2, _TWO_DEVICES)
 
 
 # ------------------------------------------------------------------ vector wrappers
