@@ -29,17 +29,25 @@ import results_io
 
 import jaxenvs
 
-_MEMORY = """
+#: the start of a memory-measuring process (a template: ``{cache}``, the JAX compile-cache
+#: directory): ``mujoco.mjx`` and ``jaxenvs`` imported (mjx is imported by the first make,
+#: not by jaxenvs: in the base either way), ``peak()`` in MiB, ``base`` the peak there
+MEMORY_PREAMBLE = """
 import json, resource, jax, jax.numpy as jnp
 jax.config.update("jax_compilation_cache_dir", {cache!r})
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 import contextlib, io
 with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx  # in the base: imported by the first make, not by jaxenvs
+    from mujoco import mjx
 import jaxenvs
 def peak():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB
 base = peak()
+"""
+
+_MEMORY = (
+    MEMORY_PREAMBLE
+    + """
 benv = jaxenvs.make("HexapodWalk-v0", num_envs={n}, randomize={r}, physics="c")
 step = jax.jit(benv.step, donate_argnums=0)  # the state updated in place, as in a scan
 s = jax.jit(benv.reset)(jax.random.key(0))
@@ -49,6 +57,7 @@ jax.block_until_ready(s)
 print(json.dumps({{"envs": {n}, "randomize": {r}, "peak_mib_above_import": peak() - base,
                   "path": benv.env.sim.engine.path, "compile_cache": {which!r}}}))
 """
+)
 
 _FIRST = """
 import contextlib, io, json, time, jax, jax.numpy as jnp

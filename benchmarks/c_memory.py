@@ -31,18 +31,11 @@ import tempfile
 from pathlib import Path
 
 import results_io
+from c_engine_costs import MEMORY_PREAMBLE
 
-_RUN = """
-import json, resource, jax, jax.numpy as jnp
-jax.config.update("jax_compilation_cache_dir", {cache!r})
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-import contextlib, io
-with contextlib.redirect_stdout(io.StringIO()):
-    from mujoco import mjx  # imported by the first make where jaxenvs leaves it to that
-import jaxenvs
-def peak():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB
-base = peak()
+_RUN = (
+    MEMORY_PREAMBLE
+    + """
 out = {{"import": base}}
 benv = jaxenvs.make("HexapodWalk-v0", num_envs={n}, randomize=True, physics="c")
 out["make"] = peak() - base
@@ -60,6 +53,7 @@ jax.block_until_ready(s)
 out["steps"] = peak() - base
 print(json.dumps(out))
 """
+)
 
 STAGES = ("import", "make", "reset_compiled", "reset_ran", "step_compiled", "steps")
 
