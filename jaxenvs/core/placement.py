@@ -146,7 +146,8 @@ def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
         if available == 1:
             return 1
         n = divisible_devices(num_envs, available)
-        if n < available == local and num_envs >= available:
+        # a C batch capped below the local count divides by choice: no warning
+        if available == local and n < available and num_envs >= available:
             lower = num_envs - num_envs % available
             warnings.warn(
                 f"num_envs={num_envs} does not divide over the {available} local devices: "

@@ -17,6 +17,7 @@ same metadata (:func:`run_metadata`); :func:`export` writes one atomically.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -106,8 +107,6 @@ def run_metadata(resolved: Any, env: Any, seed: int, normalize: bool) -> dict[st
 def env_config_changes(config: Any) -> dict[str, Any]:
     """The fields of a task config that differ from its class's defaults (JSON types),
     e.g. ``{"action_delay_max": 2}``: what ``jaxenvs deploy`` needs of the trained env."""
-    import dataclasses
-
     default = type(config)()
     out = {}
     for field in dataclasses.fields(config):
