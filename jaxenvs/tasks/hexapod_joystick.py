@@ -301,13 +301,16 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             delay=jnp.zeros((), jnp.int32),
             bias=jnp.zeros(SENSOR_SIZE),
         )
+        biased = c.joint_bias > 0 or c.gyro_bias > 0
+        if c.action_delay_max == 0 and not biased:
+            return data, extras
         # the gap's draws from a key of their own, so that the draws above are those of a
         # config without them
         gap = jax.random.uniform(jax.random.fold_in(key, 1), (22,))
         if c.action_delay_max > 0:
             delay = jnp.floor(gap[0] * (c.action_delay_max + 1)).astype(jnp.int32)
             extras = extras.replace(delay=jnp.minimum(delay, c.action_delay_max))
-        if c.joint_bias > 0 or c.gyro_bias > 0:
+        if biased:
             joint = c.joint_bias * (2.0 * gap[1:19] - 1.0)
             gyro = c.gyro_bias * (2.0 * gap[19:22] - 1.0)
             extras = extras.replace(bias=jnp.concatenate([joint, jnp.zeros(21), gyro]))
