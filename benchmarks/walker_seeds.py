@@ -9,7 +9,11 @@ batch of ``4 x --envs`` envs, each for one episode (``--episode-steps``, 1000 = 
   the fraction of envs that fell (``fell_fraction``).
 * ``near``: the target ``--near`` metres away (3 m) in a random direction: the fraction of
   envs whose body centre came within ``--radius`` (0.25 m, about a body length) of it
-  before falling, within the episode (``targets_reached``).
+  before falling, within the episode (``targets_reached``). Where the run's task draws
+  waypoints (``waypoint_radius`` > 0, the default), each arrival draws a new target
+  ``--near`` metres away: ``targets_per_minute`` counts the arrivals while up per minute
+  of the episode, averaged over the envs, and ``fell_fraction_episode`` the falls over
+  the whole episode of walking from target to target.
 
 each under the task's default physics params (``default``) and under params drawn by
 ``env.sample_params``, one draw per env (``randomized``: mass and inertia x0.8-1.2, foot
@@ -115,7 +119,8 @@ def evaluate(
             up_after = up & ~s.terminated
             low = s.data.qpos[:, 2] < env.config.min_height
             upright = jax.vmap(quat_to_mat)(s.data.qpos[:, 3:7])[:, 2, 2]
-            out = (s.info["progress"], s.info["distance"], upright, low, up, up_after)
+            reached = s.info["targets_reached"]
+            out = (s.info["progress"], s.info["distance"], upright, low, up, up_after, reached)
             pose = (s.data.qpos[0::n], s.data.mocap_pos[0::n, 0])
             return (s, up_after), (out, pose)
 
@@ -127,7 +132,8 @@ def evaluate(
     out, pose = jax.device_get(rollout(params, reset_key))
     seconds = time.perf_counter() - start
     # (episode_steps, 4n) each; ``up``: up before the step, ``after``: still up after it
-    progress, distance, upright, low, up, after = (np.asarray(x) for x in out)
+    progress, distance, upright, low, up, after, count = (np.asarray(x) for x in out)
+    arrivals = np.diff(count, axis=0, prepend=0.0) * up  # an arrival on a step begun up
     result: dict[str, Any] = {
         "physics": env.physics,
         "device": jax.devices()[0].device_kind,
@@ -138,11 +144,13 @@ def evaluate(
         "far_m": far,
         "near_m": near,
         "radius_m": radius,
+        "waypoint_radius_m": env.config.waypoint_radius,
         "wall_seconds": round(seconds, 2),  # compile included
     }
     for g, name in enumerate(GROUPS):
         cols = slice(g * n, (g + 1) * n)
-        p, d, z, lo, u, a = (x[:, cols] for x in (progress, distance, upright, low, up, after))
+        fields = (progress, distance, upright, low, up, after, arrivals)
+        p, d, z, lo, u, a, arr = (x[:, cols] for x in fields)
         stats: dict[str, Any] = {}
         if name.endswith("far"):
             # an env that fell keeps stepping, and under C its physics can blow up (NaN)
@@ -164,6 +172,8 @@ def evaluate(
                 float(np.median(first) * env.control_dt) if reached.any() else None
             )
             stats["min_distance_median_m"] = float(np.median(np.where(u, d, np.inf).min(0)))
+            minutes = episode_steps * env.control_dt / 60.0
+            stats["targets_per_minute"] = float(arr.sum(0).mean() / minutes)
         # falls over the whole episode, and what ended them (height or tilt)
         fell = ~a[-1]
         fall_step = (~a).argmax(0)[fell]
@@ -208,6 +218,7 @@ def config_diff(run: Path) -> dict[str, Any]:
 def table(run_dirs: list[str]) -> list[dict[str, Any]]:
     """One record per run (seed) from its summary.json, config.yaml and eval files."""
     keys = ("speed_m_per_s", "fell_fraction", "targets_reached")
+    near_keys = ("targets_per_minute",)
     rows = []
     for run_dir in run_dirs:
         run = Path(run_dir)
@@ -218,6 +229,10 @@ def table(run_dirs: list[str]) -> list[dict[str, Any]]:
             "seed": resolved.train.seed,
             "run": run.name,
             "train_seconds": summary["wall_seconds"],
+            # the first chunk's wall: mostly compile (short where the compile cache was warm)
+            "first_chunk_seconds": float(
+                runner.read_progress(run / runner.PROGRESS_FILE)[0]["wall_seconds"]
+            ),
             "gpu": mjx_eval["device"],
             "env_steps": summary["env_steps"],
             "eval_mean_return": summary["eval_mean_return"],
@@ -226,7 +241,11 @@ def table(run_dirs: list[str]) -> list[dict[str, Any]]:
 
         def figures(ev: dict[str, Any], kind: str) -> dict[str, Any]:
             far, near = ev[f"{kind}_far"], ev[f"{kind}_near"]
-            return {k: round((far | near)[k], 4) for k in keys}
+            out = {k: round((far | near)[k], 4) for k in keys}
+            out["fell_fraction_episode"] = round(far["fell_fraction_episode"], 4)
+            out["fell_fraction_episode_near"] = round(near["fell_fraction_episode"], 4)
+            out |= {k: round(near[k], 4) for k in near_keys if k in near}
+            return out
 
         row |= figures(mjx_eval, "default")
         row["randomized"] = figures(mjx_eval, "randomized")

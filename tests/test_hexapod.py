@@ -14,9 +14,15 @@ import mujoco
 import numpy as np
 import pytest
 
-from jaxenvs.core import NoExtras
+from jaxenvs.robots.base import world_to_body
 from jaxenvs.robots.hexapod import JOINT_RANGE, leg_tip, quat_to_mat
-from jaxenvs.tasks.hexapod import OBS_NOISE, HexapodOneLeg, HexapodWalk, OneLegConfig, WalkConfig
+from jaxenvs.tasks.hexapod import (
+    OBS_NOISE,
+    HexapodOneLeg,
+    HexapodWalk,
+    OneLegConfig,
+    WalkConfig,
+)
 
 # Parity tolerances (MJX float32 vs MuJoCo C float64, 100 control steps = 500 physics steps).
 # The leg has no contacts: the two agree to float32 rounding. The walker's contacts are
@@ -117,6 +123,36 @@ def test_walker_observation_and_reward_terms(walk):
     assert abs(float(state2.info["progress"]) - (d0 - d1) / 0.05) < 1e-3
 
 
+def test_walker_draws_a_new_target_on_arrival(walk):
+    """Waypoints: a step that ends within ``waypoint_radius`` of the target draws a new one
+    at a distance in ``target_range`` from the body, counts the arrival, and pays the
+    progress toward the target it reached; a step that ends farther keeps its target."""
+    env, reset, step = walk
+    state = reset(jax.random.key(5))
+    assert int(state.extras.targets_reached) == 0
+    body = state.data.qpos[:2]
+    near = state.data.mocap_pos.at[0, :2].set(body + jnp.array([0.1, 0.0]))
+    state = state.replace(data=state.data.replace(mocap_pos=near))
+    arrived = step(state, jnp.zeros(18))
+    new = np.asarray(arrived.data.mocap_pos[0, :2])
+    pos = np.asarray(arrived.data.qpos[:2])
+    assert 1.0 <= np.linalg.norm(new - pos) <= 3.0  # the default target_range
+    assert int(arrived.extras.targets_reached) == 1
+    assert float(arrived.info["targets_reached"]) == 1.0
+    old = np.asarray(near[0, :2])
+    np.testing.assert_allclose(float(arrived.info["distance"]), np.linalg.norm(old - pos), 1e-5)
+    to_new = np.append((new - pos) / np.linalg.norm(new - pos), 0.0)
+    expected = world_to_body(arrived.data.qpos[3:7], jnp.asarray(to_new, jnp.float32))
+    np.testing.assert_allclose(np.asarray(arrived.obs[46:49]), expected, atol=1e-5)
+    kept = step(arrived, jnp.zeros(18))
+    np.testing.assert_array_equal(kept.data.mocap_pos, arrived.data.mocap_pos)
+    assert int(kept.extras.targets_reached) == 1
+    single = HexapodWalk(WalkConfig(physics="c", waypoint_radius=0.0))
+    s = single.reset(jax.random.key(5))
+    s = s.replace(data=s.data.replace(mocap_pos=near))
+    np.testing.assert_array_equal(single.step(s, jnp.zeros(18)).data.mocap_pos, near)
+
+
 @pytest.mark.full
 def test_walker_noise_options_default_off_and_keyed():
     """action_noise / obs_noise: off by default (the noiseless observation), and drawn
@@ -149,11 +185,11 @@ def test_walker_tilt_and_spin_penalties(walk):
     qvel = prev.qvel.at[3:6].set(jnp.array([1.5, -0.5, 3.0]))
     nxt = prev.replace(qpos=prev.qpos.at[3:7].set(tilt), qvel=qvel)
     shaped = HexapodWalk(WalkConfig(tilt_weight=2.0, spin_weight=0.1))
-    params, action = env.default_params, jnp.zeros(18)
-    base, _ = env._reward(state.data, nxt, action, NoExtras(), params)
-    reward, _ = shaped._reward(state.data, nxt, action, NoExtras(), params)
-    fallen = env._terminated(nxt, NoExtras(), params)
-    shaped_fallen = shaped._terminated(nxt, NoExtras(), params)
+    params, action, extras = env.default_params, jnp.zeros(18), state.extras
+    base, _ = env._reward(state.data, nxt, action, extras, params)
+    reward, _ = shaped._reward(state.data, nxt, action, extras, params)
+    fallen = env._terminated(nxt, extras, params)
+    shaped_fallen = shaped._terminated(nxt, extras, params)
     up_z = quat_to_mat(nxt.qpos[3:7])[2, 2]
     expected = base - 2.0 * (1.0 - up_z) - 0.1 * jnp.sum(nxt.qvel[3:5] ** 2)
     assert float(1.0 - up_z) > 0.05 and float(jnp.sum(nxt.qvel[3:5] ** 2)) > 0.5

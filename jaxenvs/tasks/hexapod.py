@@ -2,7 +2,8 @@
 legs on a fixed base (the rig).
 
 =====================  =============================================================
-``HexapodWalk-v0``      walk toward a target sampled at reset; falls end the episode
+``HexapodWalk-v0``      walk from target to target (a new one drawn on arrival); falls end
+                        the episode
 ``HexapodOneLeg-v0``    put one leg's foot tip on a reachable target; no contacts
 =====================  =============================================================
 
@@ -44,7 +45,7 @@ from flax import struct
 
 from jaxenvs import randomize
 from jaxenvs.config import require
-from jaxenvs.core import Env, NoExtras, TaskConfig
+from jaxenvs.core import Env, TaskConfig
 from jaxenvs.randomize import Range
 from jaxenvs.robots.base import Readings, RobotTask, gravity_in_body, world_to_body
 from jaxenvs.robots.hexapod import JOINT_RANGE, Hexapod, HexapodLeg, HexapodRanges, leg_tip
@@ -131,6 +132,9 @@ class WalkConfig(HexapodRandomization):
         [-1, 1] (fractions of the joint's half-range; 0: none).
       obs_noise: std of Gaussian observation noise as a multiple of :data:`OBS_NOISE`
         (per-entry sensor scales; 0: none). Both draw from the hooks' keys.
+      waypoint_radius: a target counts as reached when the body centre comes within this
+        horizontal distance of it (m; about a body length), and a new target is drawn
+        (waypoints); 0: one target per episode, never replaced.
     """
 
     episode_length: int = 1000
@@ -148,6 +152,7 @@ class WalkConfig(HexapodRandomization):
     init_height: float = 0.14
     action_noise: float = 0.0
     obs_noise: float = 0.0
+    waypoint_radius: float = 0.25
 
     def validate(self) -> None:
         super().validate()
@@ -155,14 +160,25 @@ class WalkConfig(HexapodRandomization):
         require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
         randomize.check_range("target_distance", self.target_distance, positive=True)
         weights = ("progress_weight", "energy_weight", "alive_bonus", "tilt_weight", "spin_weight")
-        for name in (*weights, "init_joint_noise", "action_noise", "obs_noise"):
+        noises = ("init_joint_noise", "action_noise", "obs_noise", "waypoint_radius")
+        for name in (*weights, *noises):
             require(getattr(self, name) >= 0, name, "must be >= 0")
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
 
 
+class WalkExtras(struct.PyTreeNode):
+    """``HexapodWalk-v0``'s own state.
+
+    Attributes:
+      targets_reached: targets reached so far in the episode (int32).
+    """
+
+    targets_reached: jax.Array
+
+
 class HexapodWalk(RobotTask, Env[WalkConfig]):
-    """``HexapodWalk-v0``: walk the hexapod to a target on the floor.
+    """``HexapodWalk-v0``: walk the hexapod from target to target on the floor.
 
     * Observation (49), from the robot's readings: 18 joint angles (rad; legs lf, lm,
       lr, rf, rm, rr, each hip, femur, tibia: the encoders), 18 joint velocities (rad/s),
@@ -176,9 +192,16 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
       (with ``action_noise`` > 0, Gaussian noise of that std added, then clipped).
     * Reward: ``progress_weight * (d_prev - d) / 0.05 - energy_weight * sum|tau * qdot|
       - tilt_weight * (1 - up_z) - spin_weight * (w_roll^2 + w_pitch^2) + alive_bonus``
-      with ``d`` the horizontal body-target distance (the progress term is the decrease of
-      the distance per step expressed in m/s), ``up_z`` the vertical component of the
-      body's up axis and ``w`` the body-frame angular velocity.
+      with ``d`` the horizontal distance from the body to the target in force during the
+      step (the progress term is the decrease of the distance per step expressed in m/s),
+      ``up_z`` the vertical component of the body's up axis and ``w`` the body-frame
+      angular velocity.
+    * Waypoints: when a step ends with the body within ``waypoint_radius`` of the target,
+      a new target is drawn at a distance in the params' ``target_range`` from the body,
+      in a uniformly random direction; the next observation points at it.
+      ``extras.targets_reached`` counts the arrivals, and ``info`` carries it as the
+      metric ``targets_reached`` (with ``distance``, to the target in force during the
+      step, ``progress`` and ``energy``).
     * Termination: height < ``min_height`` or the body's up axis z-component <
       ``min_upright`` (tilted more than ~45 degrees, on its side or flipped).
       Truncation: 1000 steps.
@@ -191,7 +214,7 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
     cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
     robot: Hexapod
 
-    metric_keys = ("distance", "progress", "energy")
+    metric_keys = ("distance", "progress", "energy", "targets_reached")
     #: the test battery's vmap-vs-single tolerance: the 6-iteration CG contact solve
     #: amplifies the batched program's last-bit differences.
     vmap_atol = 1e-2
@@ -214,7 +237,7 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
     observation_size = 49
     action_size = 18
 
-    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, NoExtras]:
+    def _init(self, key: jax.Array, params: HexapodParams) -> tuple[mjx.Data, WalkExtras]:
         # one draw for all 21 numbers: each random call is a loop XLA compiles on its own
         # (on a CPU most of a first call's compile time is the PRNG's)
         u = jax.random.uniform(key, (21,))
@@ -229,23 +252,44 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         angle = math.pi * (2.0 * u[20] - 1.0)
         target = jnp.stack([dist * jnp.cos(angle), dist * jnp.sin(angle), 0.01])[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24), mocap_pos=target)
-        return data, NoExtras()
+        return data, WalkExtras(targets_reached=jnp.zeros((), jnp.int32))
 
     def _act(
         self,
         key: jax.Array,
         data: mjx.Data,
-        extras: NoExtras,
+        extras: WalkExtras,
         action: jax.Array,
         params: HexapodParams,
-    ) -> tuple[mjx.Data, NoExtras]:
+    ) -> tuple[mjx.Data, WalkExtras]:
+        noise_key, target_key = jax.random.split(key)
         model = self.sim.model_with(params.model)
         if self.config.action_noise > 0:
-            noise = self.config.action_noise * jax.random.normal(key, action.shape)
+            noise = self.config.action_noise * jax.random.normal(noise_key, action.shape)
             action = jnp.clip(action + noise, -1.0, 1.0)
-        return self.sim.step(model, data, self.robot.command(action)), extras
+        data = self.sim.step(model, data, self.robot.command(action))
+        if self.config.waypoint_radius > 0:
+            data, extras = self.next_target(target_key, data, extras, params)
+        return data, extras
 
-    def task_state(self, data: mjx.Data, extras: NoExtras) -> jax.Array:
+    def next_target(
+        self, key: jax.Array, data: mjx.Data, extras: WalkExtras, params: HexapodParams
+    ) -> tuple[mjx.Data, WalkExtras]:
+        """``data`` with a new target drawn from ``key`` where the body is within
+        ``waypoint_radius`` of the current one (else unchanged), and the arrival counted."""
+        pos = self.robot.sense(data)["torso_pos"][:2]
+        target = data.mocap_pos[0, :2]
+        reached = jnp.linalg.norm(target - pos) < self.config.waypoint_radius
+        u = jax.random.uniform(key, (2,))
+        low, high = params.target_range[0], params.target_range[1]
+        dist = low + (high - low) * u[0]
+        angle = math.pi * (2.0 * u[1] - 1.0)
+        new = pos + dist * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+        mocap = data.mocap_pos.at[0, :2].set(jnp.where(reached, new, target))
+        count = extras.targets_reached + reached.astype(jnp.int32)
+        return data.replace(mocap_pos=mocap), extras.replace(targets_reached=count)
+
+    def task_state(self, data: mjx.Data, extras: WalkExtras) -> jax.Array:
         """The task's own input to :meth:`observation`: the target's world (x, y) (m)."""
         return data.mocap_pos[0, :2]
 
@@ -269,7 +313,7 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         )
 
     def _observe(
-        self, key: jax.Array, data: mjx.Data, extras: NoExtras, params: HexapodParams
+        self, key: jax.Array, data: mjx.Data, extras: WalkExtras, params: HexapodParams
     ) -> jax.Array:
         obs = self.observation(self.robot.sense(data), self.task_state(data, extras))
         if self.config.obs_noise > 0:
@@ -281,12 +325,12 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         prev: mjx.Data,
         data: mjx.Data,
         action: jax.Array,
-        extras: NoExtras,
+        extras: WalkExtras,
         params: HexapodParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
         c = self.config
         before, now = self.robot.sense(prev), self.robot.sense(data)
-        target = self.task_state(data, extras)
+        target = prev.mocap_pos[0, :2]  # in force during the step (a waypoint may follow)
         d_prev = jnp.linalg.norm(target - before["torso_pos"][:2])
         dist = jnp.linalg.norm(target - now["torso_pos"][:2])
         progress = (d_prev - dist) / self.control_dt
@@ -299,10 +343,15 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
             - c.spin_weight * spin
             + c.alive_bonus
         )
-        metrics = {"distance": dist, "progress": progress, "energy": energy}
+        metrics = {
+            "distance": dist,
+            "progress": progress,
+            "energy": energy,
+            "targets_reached": extras.targets_reached,
+        }
         return reward, metrics
 
-    def _terminated(self, data: mjx.Data, extras: NoExtras, params: HexapodParams) -> jax.Array:
+    def _terminated(self, data: mjx.Data, extras: WalkExtras, params: HexapodParams) -> jax.Array:
         """Fallen: the body below ``min_height`` or tilted past ``min_upright``."""
         c = self.config
         now = self.robot.sense(data)
