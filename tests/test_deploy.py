@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from jaxenvs import cli
 from jaxenvs.deploy import wire
 from jaxenvs.deploy.export import npz_bytes
 from jaxenvs.deploy.log import read_log
@@ -102,7 +103,7 @@ def _failed_fast(
     assert messages["/deploy/summary"][0]["error"]
 
 
-def test_deploy_cartpole_through_the_simulated_robot(tmp_path):
+def test_deploy_cartpole_through_the_simulated_robot(tmp_path, capsys):
     """About 2 s of CartPole through ``--robot sim``: the summary's fields present and sane,
     no fall, and the log renders to a video."""
     policy, summary, log = _pd_policy(tmp_path / "pd.npz"), tmp_path / "s.json", tmp_path / "l.mcap"
@@ -134,28 +135,10 @@ def test_deploy_cartpole_through_the_simulated_robot(tmp_path):
     assert len(commands) == 100 and [c["step"] for c in commands] == list(range(100))
     assert len(messages["/robot/state"]) >= 95 and messages["/deploy/summary"][0] == s
     video = tmp_path / "run.mp4"
-    done = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "jaxenvs",
-            "render",
-            "--log",
-            str(log),
-            "--out",
-            str(video),
-            "--width",
-            "160",
-            "--height",
-            "120",
-        ],
-        capture_output=True,
-        text=True,
-        env=_env(),
-        timeout=120,
-    )
-    assert done.returncode == 0, done.stderr
-    assert video.stat().st_size > 1000 and f"{len(messages['/robot/state'])} frames" in done.stdout
+    argv = ["render", "--log", str(log), "--out", str(video), "--width", "160", "--height", "120"]
+    assert cli.main(argv) == 0
+    frames = f"{len(messages['/robot/state'])} frames"
+    assert video.stat().st_size > 1000 and frames in capsys.readouterr().out
 
 
 @pytest.mark.full

@@ -67,6 +67,7 @@ def _deploy(tmp_path: Path, script: str, seconds: float, **env_config: object) -
     return json.loads(summary.read_text()), read_log(log)
 
 
+@pytest.mark.full  # a real-time subprocess run; the default tier deploys CartPole so
 def test_joystick_deploys_with_its_command_and_reports_tracking_errors(tmp_path):
     """2 s standing still: 1 s under a forward command (0.3 m/s), 1 s under a yaw rate
     (0.5 rad/s). The errors are those speeds (RMS over the halves), the robot never
@@ -141,12 +142,14 @@ def test_loop_observation_is_the_envs_with_delayed_actions():
     st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
     opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
     keys = jax.random.split(jax.random.key(0), 32)
-    state = env.reset(keys[int(np.argmax(np.asarray(jax.vmap(env.reset)(keys).extras.delay)))])
+    # jitted: an eager call compiles each of its operations on its own (seconds here)
+    delays = jax.jit(jax.vmap(env.reset))(keys).extras.delay
+    state = jax.jit(env.reset)(keys[int(np.argmax(np.asarray(delays)))])
     assert int(state.extras.delay) == 2
-    step, observable = jax.jit(env.step), env.robot.observable()
+    step, sense, observable = jax.jit(env.step), jax.jit(env.robot.sense), env.robot.observable()
     t0 = time.monotonic()
     for k in range(8):
-        readings = {n: np.asarray(v) for n, v in env.robot.sense(state.data).items()}
+        readings = {n: np.asarray(v) for n, v in sense(state.data).items()}
         readings = {n: v for n, v in readings.items() if n in observable}
         link.frame = SensorFrame(k, 0.0, readings, time.monotonic())
         commands.value = np.asarray(state.extras.command)

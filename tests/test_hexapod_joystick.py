@@ -5,6 +5,7 @@ under the C engine in the default tier and under MJX in the full tier.)"""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -40,18 +41,30 @@ def gap_env() -> HexapodJoystick:
     return made
 
 
+_PROGRAMS: dict[tuple[int, str], Any] = {}
+
+
+def _jit(env: HexapodJoystick, name: str) -> Any:
+    """``env``'s ``reset``, ``step`` or vmapped reset (``vreset``), jitted once per module:
+    an eager call compiles each of its operations on its own, several seconds here."""
+    if (id(env), name) not in _PROGRAMS:
+        fn = {"reset": env.reset, "step": env.step, "vreset": jax.vmap(env.reset)}[name]
+        _PROGRAMS[id(env), name] = jax.jit(fn)
+    return _PROGRAMS[id(env), name]
+
+
 def _key_of_delay(env: HexapodJoystick, delay: int) -> jax.Array:
     """A reset key whose env draws ``delay``."""
     keys = jax.random.split(jax.random.key(11), 64)
-    drawn = np.asarray(jax.vmap(env.reset)(keys).extras.delay)
+    drawn = np.asarray(_jit(env, "vreset")(keys).extras.delay)
     return keys[int(np.flatnonzero(drawn == delay)[0])]
 
 
 @pytest.fixture(scope="module")
 def walked(env):
     """A state after 10 steps of random actions."""
-    step = jax.jit(env.step)
-    state = env.reset(jax.random.key(3))
+    step = _jit(env, "step")
+    state = _jit(env, "reset")(jax.random.key(3))
     for i in range(10):
         state = step(state, jax.random.uniform(jax.random.key(i), (18,), minval=-0.5, maxval=0.5))
     return state
@@ -113,9 +126,9 @@ def test_observation_reads_only_what_the_robot_measures(env, walked):
 def test_delay_applies_the_action_of_d_steps_ago(env, gap_env, delay):
     """From the same key, the delayed env under actions a_t moves exactly as the undelayed
     one under a_{t-d} (zeros before): the gap's draws leave the reset's other draws alone."""
-    step, plain_step = jax.jit(gap_env.step), jax.jit(env.step)
+    step, plain_step = _jit(gap_env, "step"), _jit(env, "step")
     key = _key_of_delay(gap_env, delay)
-    state, plain = gap_env.reset(key), env.reset(key)
+    state, plain = _jit(gap_env, "reset")(key), _jit(env, "reset")(key)
     assert int(state.extras.delay) == delay
     actions = jax.random.uniform(jax.random.key(7), (5, 18), minval=-0.5, maxval=0.5)
     for t in range(5):
@@ -131,7 +144,7 @@ def test_delay_applies_the_action_of_d_steps_ago(env, gap_env, delay):
 
 def test_delay_and_biases_drawn_per_env_from_the_key(env, gap_env):
     keys = jax.random.split(jax.random.key(2), 300)
-    extras = jax.vmap(gap_env.reset)(keys).extras
+    extras = _jit(gap_env, "vreset")(keys).extras
     delay, bias = np.asarray(extras.delay), np.asarray(extras.bias)
     counts = np.bincount(delay, minlength=3)
     assert len(counts) == 3 and np.all(counts > 70)  # uniform in 0..2: 100 each
@@ -140,21 +153,21 @@ def test_delay_and_biases_drawn_per_env_from_the_key(env, gap_env):
     assert np.all(np.abs(bias[:, 39:]) <= 0.03) and np.abs(bias[:, 39:]).max() > 0.029
     assert np.all(bias[:, 18:39] == 0.0)
     assert len(np.unique(bias[:, 0])) == len(keys)
-    again = jax.vmap(gap_env.reset)(keys).extras
+    again = _jit(gap_env, "vreset")(keys).extras
     np.testing.assert_array_equal(again.delay, delay)
     np.testing.assert_array_equal(again.bias, bias)
-    other = jax.vmap(gap_env.reset)(jax.random.split(jax.random.key(3), 300)).extras
+    other = _jit(gap_env, "vreset")(jax.random.split(jax.random.key(3), 300)).extras
     assert not np.array_equal(other.delay, delay)
     # the plain env: no delay, no bias, the observation of the last action only
-    plain = jax.vmap(env.reset)(keys[:8])
+    plain = _jit(env, "vreset")(keys[:8])
     assert np.all(np.asarray(plain.extras.delay) == 0) and not np.any(plain.extras.bias)
     assert env.observation_size == 63 and plain.obs.shape == (8, 63)
     assert gap_env.observation_size == 99
 
 
 def test_biases_offset_the_observed_sensors(gap_env):
-    state = gap_env.reset(jax.random.key(4))
-    state = jax.jit(gap_env.step)(state, jnp.full(18, 0.1))
+    state = _jit(gap_env, "reset")(jax.random.key(4))
+    state = _jit(gap_env, "step")(state, jnp.full(18, 0.1))
     task = gap_env.task_state(state.data, state.extras)
     clean = gap_env.observation(gap_env.robot.sense(state.data), task)
     np.testing.assert_allclose(state.obs[:42] - clean[:42], state.extras.bias, atol=1e-6)
@@ -162,10 +175,10 @@ def test_biases_offset_the_observed_sensors(gap_env):
 
 
 def test_commands_redrawn_on_schedule_from_the_key(env):
-    step = jax.jit(env.step)
+    step = _jit(env, "step")
 
     def commands(key: jax.Array) -> np.ndarray:
-        state = env.reset(key)
+        state = _jit(env, "reset")(key)
         out = [np.asarray(state.extras.command)]
         for _ in range(9):
             state = step(state, jnp.zeros(18))
@@ -197,7 +210,7 @@ def test_commands_cover_the_ranges_and_zero():
 
 
 def test_zero_commands_occur_at_reset(env):
-    states = jax.vmap(env.reset)(jax.random.split(jax.random.key(5), 400))
+    states = _jit(env, "vreset")(jax.random.split(jax.random.key(5), 400))
     zero = np.all(np.asarray(states.extras.command) == 0.0, axis=1)
     assert 0.04 < zero.mean() < 0.17  # zero_probability 0.1
 

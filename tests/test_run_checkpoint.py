@@ -178,6 +178,7 @@ def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
     checkpoint), the notice says how to resume, and the resumed run ends where an
     uninterrupted one does."""
     whole = runner.train(_chain(), tmp_path / "whole", quiet=True)
+    before = signal.getsignal(signal.SIGINT)  # SIG_IGN where the shell started us in the background
     real = loop._run_chunk
     calls = {"n": 0}
 
@@ -200,7 +201,7 @@ def test_ctrl_c_commits_the_running_chunk_then_stops(tmp_path, monkeypatch):
     assert summary["interrupted"] and summary["chunks"] == 2
     assert any("stopping after the running chunk" in n for n in notices), notices
     assert any(f"jaxenvs train --resume {out}" in n for n in notices), notices
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    assert signal.getsignal(signal.SIGINT) is before  # restored
     monkeypatch.setattr(loop, "_run_chunk", real)
     resumed = runner.train(runner.load_run_config(out), out, resume=True, quiet=True)
     assert resumed["eval_mean_return"] == whole["eval_mean_return"]
