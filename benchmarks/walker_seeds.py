@@ -258,9 +258,12 @@ def table(run_dirs: list[str]) -> list[dict[str, Any]]:
     return sorted(rows, key=lambda r: r["seed"])
 
 
-def render(trajectory: str, group: str, gif: str | None, strip: str | None) -> None:
+def render(
+    trajectory: str, group: str, gif: str | None, strip: str | None, seconds: float | None = None
+) -> None:
     """Draw env 0 of ``group`` from a saved trajectory: a GIF (every other control step,
-    until 1 s after the target is reached) and/or a strip of 5 frames."""
+    over the first ``seconds``, or until 1 s after the first target is reached) and/or a
+    strip of 5 frames."""
     import imageio.v2 as imageio
 
     from jaxenvs import make
@@ -271,7 +274,9 @@ def render(trajectory: str, group: str, gif: str | None, strip: str | None) -> N
     qpos, target = pose[f"{group}_qpos"], pose[f"{group}_mocap_pos"]
     dist = np.linalg.norm(qpos[:, :2] - target[:, :2], axis=1)
     end = len(qpos)
-    if group.endswith("near") and (dist < 0.25).any():
+    if seconds is not None:
+        end = min(end, round(seconds / env.control_dt))
+    elif group.endswith("near") and (dist < 0.25).any():
         end = min(end, int((dist < 0.25).argmax()) + round(1 / env.control_dt))
     with rendering.Renderer(env, 320, 240, None) as renderer:
         # the model's one light is fixed above the start; a headlight keeps the walker lit
@@ -312,6 +317,7 @@ def main(argv: list[str] | None = None) -> None:
     rd.add_argument("--group", choices=GROUPS, default="default_near")
     rd.add_argument("--gif", metavar="OUT.gif")
     rd.add_argument("--strip", metavar="OUT.png")
+    rd.add_argument("--seconds", type=float, help="draw the first SECONDS of the episode")
     args = parser.parse_args(argv)
 
     if args.command == "eval":
@@ -342,7 +348,7 @@ def main(argv: list[str] | None = None) -> None:
         results_io.write(args.json, rec)
         print(json.dumps(rows, indent=2))
     else:
-        render(args.trajectory, args.group, args.gif, args.strip)
+        render(args.trajectory, args.group, args.gif, args.strip, args.seconds)
 
 
 if __name__ == "__main__":

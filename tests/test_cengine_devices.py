@@ -91,6 +91,7 @@ def _check_bit_identical(arrays: dict, task: str) -> None:
         np.testing.assert_array_equal(b, a, err_msg=key)
 
 
+@pytest.mark.full  # a 2-device subprocess: multi-device runs are the long tier's
 def test_c_batch_over_two_devices_is_bit_identical_and_split(native_run):
     """8 CartPole envs under C spread over 2 host devices (``devices=2``): the same states as
     on one device, bit for bit, through auto-resets; each device's engine call sees 4 envs

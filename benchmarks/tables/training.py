@@ -124,7 +124,7 @@ def _seeds_row(rec: Rec, r: Row, evals: str) -> list[str]:
 
 
 def _walker_row(rec: Rec) -> list[str]:
-    """HexapodWalk-v0's line: the shipped config's seeds."""
+    """HexapodWalk-v0's line: the shipped config's seeds (waypoints, 30 chunks)."""
     shipped = [r for r in rec["rows"] if r["config_diff"] == {}]
     ok = all(
         r["speed_m_per_s"] >= 0.5
@@ -170,7 +170,7 @@ def _walker_label(r: Row) -> tuple[int, str]:
     """Where a walker run sorts and what config it ran: before, v1 or the shipped one."""
     diff = r["config_diff"]
     if not diff:
-        return 2, "**shipped**"
+        return 2, "far targets, 80 chunks"
     if diff.get("agent.randomize") is False:
         return 0, "before (the earlier config)"
     return 1, "v1 (upright terms, randomised training, `ent_coef` 0.01, 112 chunks)"
@@ -217,6 +217,42 @@ def walker_seeds(recs: list[Rec]) -> Cells:
     return each_row(head, order, cells)
 
 
+def _waypoint_figures(g: Row) -> str:
+    """Speed and falls within 10 s (far target); 3 m targets: the first reached, targets
+    per minute and the falls over the 50 s episode of walking from target to target."""
+    return (
+        f"{g['speed_m_per_s']:.3f} / {pct(g['fell_fraction'])} / "
+        f"{pct(g['targets_reached'])} / {g['targets_per_minute']:.1f} / "
+        f"{pct(g['fell_fraction_episode_near'])}"
+    )
+
+
+def walker_waypoints(recs: list[Rec]) -> Cells:
+    """HexapodWalk-v0 with waypoints, per seed: both engines, default and drawn physics."""
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        return [
+            str(r["seed"]),
+            f"{r['train_seconds']:.1f} s ({r['first_chunk_seconds']:.1f} s first chunk), "
+            f"{r['env_steps'] / 1e6:.1f}M",
+            _waypoint_figures(r),
+            _waypoint_figures(r["randomized"]),
+            _waypoint_figures(r["mujoco_c"]),
+            _waypoint_figures(r["mujoco_c_randomized"]),
+        ]
+
+    head = [
+        "seed",
+        "train wall, env steps",
+        "MJX: speed / fell 10 s / 3 m reached / targets per min / fell 50 s at 3 m",
+        "MJX, randomised",
+        "MuJoCo C",
+        "C, randomised",
+    ]
+    return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
+
+
 def _joystick_figures(g: Row) -> str:
     fell = g["fell_fraction"] * 100
     return f"{g['tracking_error_lin']:.3f} / {g['tracking_error_yaw']:.3f} / {fell:.1f}%"
@@ -257,11 +293,12 @@ TABLES = {
             "ppo_cartpole_cpu2_cold_warm",
             "ppo_cpu2_cartpoles_reacher",
             "ppo_cpu2_oneleg",
-            "ppo_walker_seeds_h200",
+            "ppo_walker_waypoints_h100",
         ),
         ppo,
     ),
     "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
+    "walker-waypoints": Table(("ppo_walker_waypoints_h100",), walker_waypoints),
     "joystick-seeds": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
     "joystick-seeds-gap": Table(("ppo_joystick_seeds_gap_h100",), joystick_seeds),
 }
