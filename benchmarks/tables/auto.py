@@ -92,6 +92,7 @@ def _sweep_files(machine: str) -> tuple[str, ...]:
 TABLES = {
     "engines-sweep-cpu16": Table(_sweep_files("cpu16"), engines_sweep),
     "engines-sweep-cpu16-split": Table(_sweep_files("cpu16split"), engines_sweep),
+    "engines-sweep-cpu16-default": Table(_sweep_files("cpu16default"), engines_sweep),
     "engines-sweep-cpu2": Table(_sweep_files("cpu2"), engines_sweep),
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
     "c-memory-cpu2": Table(("c_memory_cpu2",), c_memory),
