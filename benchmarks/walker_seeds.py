@@ -27,7 +27,7 @@ of which change what the policy sees or does) are kept.
 
 ``eval`` writes its figures to ``RUN/walker_eval_mjx.json`` (or ``_c.json``); ``table``
 collects them, with each run's summary.json and config.yaml, into one record per run
-(``benchmarks/results/ppo_walker_seeds_h200.json``); ``slim`` writes a run's greedy policy to
+(``benchmarks/results/ppo_walker_waypoints_h100.json``); ``slim`` writes a run's greedy policy to
 ``RUN/policy.npz`` (about 1 MB), which ``eval`` reads where the full ``checkpoint.npz``
 (some 80 MB: it also holds the training envs' states) was not kept; ``render`` draws a
 trajectory saved by ``eval --trajectory`` as an animated GIF and a strip of frames, where
@@ -35,7 +35,7 @@ MuJoCo can render (``MUJOCO_GL=egl``).
 
     python benchmarks/walker_seeds.py eval RUN --trajectory RUN/walk.npz
     JAX_PLATFORMS=cpu python benchmarks/walker_seeds.py eval RUN --physics c
-    python benchmarks/walker_seeds.py table RUN0 RUN1 RUN2 --json ppo_walker_seeds_h200
+    python benchmarks/walker_seeds.py table RUN0 RUN1 RUN2 --json ppo_walker_waypoints_h100
     MUJOCO_GL=egl python benchmarks/walker_seeds.py render RUN/walk.npz \\
         --gif benchmarks/images/hexapod_walk.gif --strip benchmarks/images/hexapod_walk_frames.png
 """
@@ -98,6 +98,8 @@ def evaluate(
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The figures of one run (see the module docstring) and env 0's poses of each group."""
     env, act = eval_env(run_dir, physics)
+    if near <= env.config.waypoint_radius:
+        raise SystemExit(f"--near {near} m must exceed the task's waypoint_radius")
     n = envs
     params_key, reset_key = jax.random.split(jax.random.key(seed))
     base = env.default_params
@@ -272,12 +274,16 @@ def render(
     env = make("HexapodWalk-v0")
     pose = np.load(trajectory)
     qpos, target = pose[f"{group}_qpos"], pose[f"{group}_mocap_pos"]
-    dist = np.linalg.norm(qpos[:, :2] - target[:, :2], axis=1)
+    # the first arrival: where the saved target moves (a waypoint drawn: the pose is saved
+    # after the step), or where the body comes within 0.25 m of a target that stays
+    moved = np.flatnonzero(np.any(np.diff(target[:, :2], axis=0) != 0, axis=1))
+    close = np.flatnonzero(np.linalg.norm(qpos[:, :2] - target[:, :2], axis=1) < 0.25)
+    arrivals = [int(i) + 1 for i in moved[:1]] + [int(i) for i in close[:1]]
     end = len(qpos)
     if seconds is not None:
         end = min(end, round(seconds / env.control_dt))
-    elif group.endswith("near") and (dist < 0.25).any():
-        end = min(end, int((dist < 0.25).argmax()) + round(1 / env.control_dt))
+    elif group.endswith("near") and arrivals:
+        end = min(end, min(arrivals) + round(1 / env.control_dt))
     with rendering.Renderer(env, 320, 240, None) as renderer:
         # the model's one light is fixed above the start; a headlight keeps the walker lit
         renderer.model.vis.headlight.ambient[:] = 0.35

@@ -226,7 +226,7 @@ def _builtin() -> None:
         "HexapodWalk-v0",
         hexapod.HexapodWalk,
         hexapod.WalkConfig(),
-        "6 legs x 3 servos walk to a random target: progress - energy + alive, 1000 steps",
+        "6 legs x 3 servos walk from target to target: progress - energy + alive, 1000 steps",
     )
     register(
         "HexapodOneLeg-v0",

@@ -111,7 +111,7 @@ def test_exported_policies_act_as_the_jax_policy(exported, env_id):
         assert np.abs(onnx_act).max() <= 1.0
 
 
-def test_the_normaliser_and_the_seed_choice_are_inside(exported, runs):
+def test_the_normaliser_and_the_seed_choice_are_inside(exported, runs, tmp_path):
     """Parity is not trivial: without the normaliser the actions differ; the export holds
     the seed ``eval`` found best, whose actions differ from the other seed's."""
     paths, policy, obs, reference = exported("CartPole-v0")
@@ -119,6 +119,10 @@ def test_the_normaliser_and_the_seed_choice_are_inside(exported, runs):
     assert full.normalizer is not None
     bare = dataclasses.replace(full, normalizer=None)
     assert np.count_nonzero(bare(obs) != reference) > NUM_OBS // 100
+    # a policy without a normaliser (the shipped CartPole config's): its ONNX graph too
+    onnx_path = tmp_path / "bare.onnx"
+    onnx.save(export.onnx_model(bare), str(onnx_path))
+    np.testing.assert_array_equal(parity.onnx_actions(onnx_path, obs), bare(obs))
     summary = json.loads((runs("CartPole-v0") / runner.SUMMARY_FILE).read_text())
     best = int(np.argmax(summary["eval_mean_return_per_seed"]))
     assert full.metadata["seed"] == str(best)

@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from jaxenvs.config import ConfigError
 from jaxenvs.robots.base import world_to_body
 from jaxenvs.robots.hexapod import JOINT_RANGE, leg_tip, quat_to_mat
 from jaxenvs.tasks.hexapod import (
@@ -139,18 +140,39 @@ def test_walker_draws_a_new_target_on_arrival(walk):
     assert 1.0 <= np.linalg.norm(new - pos) <= 3.0  # the default target_range
     assert int(arrived.extras.targets_reached) == 1
     assert float(arrived.info["targets_reached"]) == 1.0
-    old = np.asarray(near[0, :2])
+    old, start = np.asarray(near[0, :2]), np.asarray(body)
     np.testing.assert_allclose(float(arrived.info["distance"]), np.linalg.norm(old - pos), 1e-5)
+    progress = (np.linalg.norm(old - start) - np.linalg.norm(old - pos)) / env.control_dt
+    np.testing.assert_allclose(float(arrived.info["progress"]), progress, atol=1e-3)
     to_new = np.append((new - pos) / np.linalg.norm(new - pos), 0.0)
     expected = world_to_body(arrived.data.qpos[3:7], jnp.asarray(to_new, jnp.float32))
     np.testing.assert_allclose(np.asarray(arrived.obs[46:49]), expected, atol=1e-5)
     kept = step(arrived, jnp.zeros(18))
     np.testing.assert_array_equal(kept.data.mocap_pos, arrived.data.mocap_pos)
     assert int(kept.extras.targets_reached) == 1
+
+
+@pytest.mark.full
+def test_walker_waypoints_per_env_in_a_batch_and_off():
+    """Vmapped, only the env that arrives draws a new target; ``waypoint_radius=0`` keeps
+    one target per episode; a target range starting inside the radius is refused."""
+    env, _, _ = _jitted(HexapodWalk)
+    states = jax.vmap(env.reset)(jax.random.split(jax.random.key(6), 2))
+    bodies = states.data.qpos[:, :2]
+    near = states.data.mocap_pos.at[0, 0, :2].set(bodies[0] + jnp.array([0.0, 0.1]))
+    states = states.replace(data=states.data.replace(mocap_pos=near))
+    stepped = jax.jit(jax.vmap(env.step))(states, jnp.zeros((2, 18)))
+    assert np.asarray(stepped.extras.targets_reached).tolist() == [1, 0]
+    assert not np.array_equal(stepped.data.mocap_pos[0], near[0])
+    np.testing.assert_array_equal(stepped.data.mocap_pos[1], near[1])
     single = HexapodWalk(WalkConfig(physics="c", waypoint_radius=0.0))
     s = single.reset(jax.random.key(5))
-    s = s.replace(data=s.data.replace(mocap_pos=near))
-    np.testing.assert_array_equal(single.step(s, jnp.zeros(18)).data.mocap_pos, near)
+    s = s.replace(data=s.data.replace(mocap_pos=near[0]))
+    out = jax.jit(single.step)(s, jnp.zeros(18))
+    np.testing.assert_array_equal(out.data.mocap_pos, near[0])
+    assert int(out.extras.targets_reached) == 0
+    with pytest.raises(ConfigError, match="target_distance"):
+        WalkConfig(target_distance=(0.2, 3.0)).validate()
 
 
 @pytest.mark.full

@@ -167,7 +167,8 @@ def ppo(recs: list[Rec]) -> Cells:
 
 
 def _walker_label(r: Row) -> tuple[int, str]:
-    """Where a walker run sorts and what config it ran: before, v1 or the shipped one."""
+    """Where a walker run of the far-target configs sorts and what config it ran: before,
+    v1 or the 80-chunk one (shipped until the waypoints)."""
     diff = r["config_diff"]
     if not diff:
         return 2, "far targets, 80 chunks"

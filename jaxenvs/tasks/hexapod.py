@@ -74,8 +74,9 @@ class HexapodParams(struct.PyTreeNode):
 
     Attributes:
       model: MJX model fields swapped in at every step.
-      target_range: (low, high) of the target's distance (walker, m) or of the target
-        posture's joint angles as fractions of each joint's half-range (one leg).
+      target_range: (low, high) of each target's distance from the body where it is
+        drawn (walker, m: at reset and at each waypoint) or of the target posture's joint
+        angles as fractions of each joint's half-range (one leg).
     """
 
     model: dict[str, jax.Array]
@@ -114,8 +115,9 @@ class WalkConfig(HexapodRandomization):
       episode_length: 1000 steps of 0.05 s (50 s).
       solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
         contact solve.
-      target_distance: the target is drawn at a distance uniform in this range (m), in a
-        uniformly random direction.
+      target_distance: each target (at reset, and each waypoint) is drawn at a distance
+        from the body uniform in this range (m), in a uniformly random direction; its low
+        end must exceed ``waypoint_radius``, so that a new target is never reached at once.
       progress_weight: weight of the progress term (metres per second toward the target).
       energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
       alive_bonus: reward per step while not fallen.
@@ -160,9 +162,14 @@ class WalkConfig(HexapodRandomization):
         require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
         randomize.check_range("target_distance", self.target_distance, positive=True)
         weights = ("progress_weight", "energy_weight", "alive_bonus", "tilt_weight", "spin_weight")
-        noises = ("init_joint_noise", "action_noise", "obs_noise", "waypoint_radius")
-        for name in (*weights, *noises):
+        others = ("init_joint_noise", "action_noise", "obs_noise", "waypoint_radius")
+        for name in (*weights, *others):
             require(getattr(self, name) >= 0, name, "must be >= 0")
+        require(
+            self.target_distance[0] > self.waypoint_radius,
+            "target_distance",
+            f"must start beyond waypoint_radius ({self.waypoint_radius} m)",
+        )
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
 
@@ -198,7 +205,8 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
       angular velocity.
     * Waypoints: when a step ends with the body within ``waypoint_radius`` of the target,
       a new target is drawn at a distance in the params' ``target_range`` from the body,
-      in a uniformly random direction; the next observation points at it.
+      in a uniformly random direction; the next observation points at it. (A deployed
+      walker's simulated robot keeps the target of its start: it stops there.)
       ``extras.targets_reached`` counts the arrivals, and ``info`` carries it as the
       metric ``targets_reached`` (with ``distance``, to the target in force during the
       step, ``progress`` and ``energy``).
@@ -262,14 +270,13 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         action: jax.Array,
         params: HexapodParams,
     ) -> tuple[mjx.Data, WalkExtras]:
-        noise_key, target_key = jax.random.split(key)
         model = self.sim.model_with(params.model)
         if self.config.action_noise > 0:
-            noise = self.config.action_noise * jax.random.normal(noise_key, action.shape)
+            noise = self.config.action_noise * jax.random.normal(key, action.shape)
             action = jnp.clip(action + noise, -1.0, 1.0)
         data = self.sim.step(model, data, self.robot.command(action))
         if self.config.waypoint_radius > 0:
-            data, extras = self.next_target(target_key, data, extras, params)
+            data, extras = self.next_target(jax.random.fold_in(key, 1), data, extras, params)
         return data, extras
 
     def next_target(
