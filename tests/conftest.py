@@ -114,34 +114,6 @@ def _program_store_stays_off():
         _session_compile_cache()
 
 
-#: the default tier's longest modules on 2 cores (seconds of test time, most first): they
-#: start first, so that no worker is left running one of them while the other idles
-#: (pytest-xdist hands out whole modules, in collection order: pyproject.toml's addopts)
-SLOW_MODULES = (
-    "test_battery.py",
-    "test_export.py",
-    "test_run_resume.py",
-    "test_gymnasium.py",
-    "test_tabular.py",
-    "test_deploy.py",
-    "test_hexapod_joystick.py",
-    "test_robots.py",
-    "test_core.py",
-    "test_render.py",
-    "test_parity.py",
-    "test_video.py",
-    "test_ppo.py",
-    "test_cengine.py",
-    "test_deploy_joystick.py",
-)
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The slow modules first (:data:`SLOW_MODULES`), the others in their usual order."""
-    rank = {name: i for i, name in enumerate(SLOW_MODULES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
-
-
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
     """``-n auto`` (the default, see pyproject.toml): one test process per usable core, at
     most 8 (each holds its own compiled programs, about 1-2 GB)."""
