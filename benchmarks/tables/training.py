@@ -4,6 +4,7 @@ each engine, and policies trained on one engine evaluated under both."""
 from __future__ import annotations
 
 import statistics
+from collections.abc import Callable
 
 from .common import Cells, Rec, Row, Table, each_row, met, pct, ret, rows, secs
 
@@ -228,30 +229,31 @@ def _waypoint_figures(g: Row) -> str:
     )
 
 
-def walker_waypoints(recs: list[Rec]) -> Cells:
-    """HexapodWalk-v0 with waypoints, per seed: both engines, default and drawn physics."""
-    (rec,) = recs
+def _per_seed(
+    rec: Rec, first: str, groups: tuple[str, ...], figures: Callable[[Row], str]
+) -> Cells:
+    """One row per seed: its train wall (first chunk) and env steps, then ``figures`` of
+    each of ``groups`` (the row's fields, or the row itself where a group is ``""``), MJX
+    and MuJoCo C, default and randomised physics; ``first``: the MJX column's head."""
 
     def cells(r: Row) -> list[str]:
         return [
             str(r["seed"]),
             f"{r['train_seconds']:.1f} s ({r['first_chunk_seconds']:.1f} s first chunk), "
             f"{r['env_steps'] / 1e6:.1f}M",
-            _waypoint_figures(r),
-            _waypoint_figures(r["randomized"]),
-            _waypoint_figures(r["mujoco_c"]),
-            _waypoint_figures(r["mujoco_c_randomized"]),
+            *(figures(r[g] if g else r) for g in groups),
         ]
 
-    head = [
-        "seed",
-        "train wall, env steps",
-        "MJX: speed / fell 10 s / 3 m reached / targets per min / fell 50 s at 3 m",
-        "MJX, randomised",
-        "MuJoCo C",
-        "C, randomised",
-    ]
+    head = ["seed", "train wall, env steps", first, "MJX, randomised", "MuJoCo C", "C, randomised"]
     return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
+
+
+def walker_waypoints(recs: list[Rec]) -> Cells:
+    """HexapodWalk-v0 with waypoints, per seed: both engines, default and drawn physics."""
+    (rec,) = recs
+    first = "MJX: speed / fell 10 s / 3 m reached / targets per min / fell 50 s at 3 m"
+    groups = ("", "randomized", "mujoco_c", "mujoco_c_randomized")
+    return _per_seed(rec, first, groups, _waypoint_figures)
 
 
 def _joystick_figures(g: Row) -> str:
@@ -262,27 +264,8 @@ def _joystick_figures(g: Row) -> str:
 def joystick_seeds(recs: list[Rec]) -> Cells:
     """HexapodJoystick-v0 per seed: RMS tracking errors and falls on both engines."""
     (rec,) = recs
-
-    def cells(r: Row) -> list[str]:
-        return [
-            str(r["seed"]),
-            f"{r['train_seconds']:.1f} s ({r['first_chunk_seconds']:.1f} s first chunk), "
-            f"{r['env_steps'] / 1e6:.1f}M",
-            _joystick_figures(r["mjx"]),
-            _joystick_figures(r["mjx_randomized"]),
-            _joystick_figures(r["mujoco_c"]),
-            _joystick_figures(r["mujoco_c_randomized"]),
-        ]
-
-    head = [
-        "seed",
-        "train wall, env steps",
-        "MJX: lin m/s / yaw rad/s / fell",
-        "MJX, randomised",
-        "MuJoCo C",
-        "C, randomised",
-    ]
-    return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
+    groups = ("mjx", "mjx_randomized", "mujoco_c", "mujoco_c_randomized")
+    return _per_seed(rec, "MJX: lin m/s / yaw rad/s / fell", groups, _joystick_figures)
 
 
 TABLES = {

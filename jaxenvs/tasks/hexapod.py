@@ -107,6 +107,15 @@ def _solver_edit(iterations: int, ls_iterations: int):  # type: ignore[no-untype
 
 
 # -------------------------------------------------------------------------- HexapodWalk-v0
+def _target_offset(u: jax.Array, target_range: jax.Array) -> jax.Array:
+    """A target's horizontal offset (2,) from where it is drawn (m): at a distance in
+    ``target_range``, in a uniformly random direction, from two uniforms ``u`` in [0, 1)."""
+    low, high = target_range[0], target_range[1]
+    dist = low + (high - low) * u[0]
+    angle = math.pi * (2.0 * u[1] - 1.0)
+    return jnp.stack([dist * jnp.cos(angle), dist * jnp.sin(angle)])
+
+
 @dataclasses.dataclass(frozen=True)
 class WalkConfig(HexapodRandomization):
     """``HexapodWalk-v0``.
@@ -255,10 +264,8 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         n = c.init_joint_noise
         joints = n * (2.0 * u[1:19] - 1.0)
         qpos = self.robot.qpos(jnp.array([0.0, 0.0, c.init_height]), quat, joints)
-        low, high = params.target_range[0], params.target_range[1]
-        dist = low + (high - low) * u[19]
-        angle = math.pi * (2.0 * u[20] - 1.0)
-        target = jnp.stack([dist * jnp.cos(angle), dist * jnp.sin(angle), 0.01])[None]
+        offset = _target_offset(u[19:21], params.target_range)
+        target = jnp.concatenate([offset, jnp.array([0.01])])[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24), mocap_pos=target)
         return data, WalkExtras(targets_reached=jnp.zeros((), jnp.int32))
 
@@ -287,11 +294,7 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
         pos = self.robot.sense(data)["torso_pos"][:2]
         target = data.mocap_pos[0, :2]
         reached = jnp.linalg.norm(target - pos) < self.config.waypoint_radius
-        u = jax.random.uniform(key, (2,))
-        low, high = params.target_range[0], params.target_range[1]
-        dist = low + (high - low) * u[0]
-        angle = math.pi * (2.0 * u[1] - 1.0)
-        new = pos + dist * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
+        new = pos + _target_offset(jax.random.uniform(key, (2,)), params.target_range)
         mocap = data.mocap_pos.at[0, :2].set(jnp.where(reached, new, target))
         count = extras.targets_reached + reached.astype(jnp.int32)
         return data.replace(mocap_pos=mocap), extras.replace(targets_reached=count)
