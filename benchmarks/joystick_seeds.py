@@ -276,6 +276,8 @@ def table(run_dirs: list[str]) -> list[dict[str, Any]]:
             # what the run trained (and was evaluated) with for the robot's link
             "action_delay_max": resolved.env.action_delay_max,
             "sensor_bias": {"joint": resolved.env.joint_bias, "gyro": resolved.env.gyro_bias},
+            # the metrics the critic saw besides the observation (PPO's critic_info)
+            "critic_info": list(resolved.agent.critic_info),
         }
         for physics, field, group in BENCHES:
             path = run / EVAL_FILE.format(physics)

@@ -103,10 +103,15 @@ def test_shipped_configs_resolve():
     names = sorted(f.name for f in files.iterdir() if f.name.endswith(".yaml"))
     assert "qlearning_CartpoleStayUp-v0.yaml" in names
     for name in names:
-        algo, env_id = name.removesuffix(".yaml").split("_", 1)  # <algo>_<id>.yaml
-        path = runner.shipped_config(algo, env_id)
-        assert path is not None and path.name == name
-        resolved = runner.resolve_config(None, None, path)
+        stem = name.removesuffix(".yaml")
+        algo, rest = stem.split("_", 1)  # <algo>_<id>.yaml or <algo>_<id>.<variant>.yaml
+        env_id, _, variant = rest.partition(".")  # ids hold no dot
+        if variant:  # a variant is chosen by its name: --config NAME
+            resolved = runner.resolve_config(None, None, name)
+        else:
+            path = runner.shipped_config(algo, env_id)
+            assert path is not None and path.name == name
+            resolved = runner.resolve_config(None, None, path)
         assert (resolved.algo, resolved.env_id) == (algo, env_id), name
     with resources.as_file(files.joinpath("qlearning_CartpoleStayUp-v0.yaml")) as path:
         course = runner.resolve_config(None, None, path)

@@ -23,6 +23,7 @@ from jaxenvs.agents.networks import (
     gaussian_log_prob,
 )
 from jaxenvs.config import ConfigError, apply_overrides
+from jaxenvs.core import BatchedEnv
 from jaxenvs.run import runner
 
 GAMMA, LAM = 0.9, 0.8
@@ -233,3 +234,53 @@ def test_continuous_randomised_task_chunk_runs():
         assert np.isfinite(float(metrics[key])), key
     action = trainer.act(trainer.policy_params(state), state.env_state.obs[0], jax.random.key(1))
     assert action.shape == (1,) and float(jnp.abs(action).max()) <= 1.0
+
+
+# ----------------------------------------------------------- asymmetric actor-critic
+def test_critic_info_feeds_the_critic_alone():
+    """``critic_info``: the critic's first layer takes the observation and the named
+    metrics, the actor's the observation alone (its params as without them); a state's
+    inputs are the metrics of the transition into it, zero at a fresh start, and a
+    finished episode's bootstrap reads its last transition's; a chunk trains with them
+    and the greedy policy needs none; an unknown key is refused by name."""
+    env = jaxenvs.make("CartpoleStayUp-v0", episode_length=3)
+    plain = ppo.PPOConfig(
+        total_steps=16, num_envs=4, num_steps=4, updates_per_chunk=1, num_minibatches=2,
+        actor_hidden=(8,), critic_hidden=(8,),
+    )  # fmt: skip
+    asym = dataclasses.replace(plain, critic_info=("command",))
+    key = jax.random.key(0)
+    rs0 = ppo.make_trainer(env, plain).init(key)
+    trainer = ppo.make_trainer(env, asym)
+    rs = trainer.init(key)
+    obs_dim = env.observation_size
+    assert rs.params["params"]["critic"]["Dense_0"]["kernel"].shape == (obs_dim + 1, 8)
+    assert rs.params["params"]["actor"]["Dense_0"]["kernel"].shape == (obs_dim, 8)
+    for a, b in zip(jax.tree.leaves(rs0.params["params"]["actor"]),
+                    jax.tree.leaves(rs.params["params"]["actor"]), strict=True):  # fmt: skip
+        np.testing.assert_array_equal(a, b)
+    assert rs0.critic_stats is None
+
+    benv = BatchedEnv(env, 4)
+    state = benv.reset(jax.random.key(1))
+    step = jax.jit(benv.step)
+    state = step(state, jnp.full((4,), 3, jnp.int32))  # a command away from zero
+    last = np.asarray(state.info["command"])
+    assert np.all(last != 0)
+    np.testing.assert_array_equal(
+        ppo.critic_inputs(state.info, ("command",), state.time == 0)[:, 0], last
+    )
+    state = step(step(state, jnp.full((4,), 3, jnp.int32)), jnp.full((4,), 3, jnp.int32))
+    assert np.all(np.asarray(state.time) == 0)  # truncated after 3 steps and reset
+    final = ppo.critic_inputs(state.info, ("command",), False)[:, 0]
+    assert np.all(np.asarray(final) != 0)  # the bootstrap's: the last transition's
+    fresh = ppo.critic_inputs(state.info, ("command",), state.time == 0)
+    np.testing.assert_array_equal(fresh, 0.0)  # a fresh start's: zero, as env.reset's
+
+    rs, metrics = jax.jit(trainer.chunk)(rs)
+    assert np.isfinite(float(metrics["value_loss"]))
+    assert rs.critic_stats is not None and float(rs.critic_stats.var[0]) > 0
+    act = trainer.act(trainer.policy_params(rs), state.obs[0], jax.random.key(2))
+    assert act.shape == () and 0 <= int(act) < env.action_size
+    with pytest.raises(ValueError, match="critic_info: nope not among"):
+        ppo.make_trainer(env, dataclasses.replace(plain, critic_info=("nope",)))

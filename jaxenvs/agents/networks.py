@@ -66,7 +66,11 @@ class MLP(nn.Module):
 
 
 class ActorCritic(nn.Module):
-    """``apply(params, obs) -> (policy_out, value)``.
+    """``apply(params, obs, critic_extra=None) -> (policy_out, value)``.
+
+    The critic sees ``obs`` followed by ``critic_extra`` (``(..., k)``: inputs only the
+    critic has, e.g. privileged state in an asymmetric actor-critic); the actor sees
+    ``obs`` alone.
 
     ``policy_out`` is the logits ``(..., action_size)`` for a discrete task, else the pair
     ``(mean, log_std)`` each ``(..., action_size)``. ``value`` has shape ``(...)``.
@@ -78,16 +82,27 @@ class ActorCritic(nn.Module):
     critic_hidden: Sequence[int] = (64, 64)
     log_std_init: float = 0.0
 
-    @nn.compact
-    def __call__(self, obs: jax.Array) -> tuple[jax.Array | tuple[jax.Array, jax.Array], jax.Array]:
-        value = MLP(self.critic_hidden, 1, 1.0, name="critic")(obs)[..., 0]
-        out = MLP(self.actor_hidden, self.action_size, 0.01, name="actor")(obs)
+    def setup(self) -> None:
+        self.critic = MLP(self.critic_hidden, 1, 1.0)
+        self.actor = MLP(self.actor_hidden, self.action_size, 0.01)
+        if not self.discrete:
+            self.log_std = self.param(
+                "log_std", nn.initializers.constant(self.log_std_init), (self.action_size,)
+            )
+
+    def policy(self, obs: jax.Array) -> jax.Array | tuple[jax.Array, jax.Array]:
+        """The policy output of ``obs`` alone (the critic is not evaluated)."""
+        out = self.actor(obs)
         if self.discrete:
-            return out, value
-        log_std = self.param(
-            "log_std", nn.initializers.constant(self.log_std_init), (self.action_size,)
-        )
-        return (out, jnp.broadcast_to(log_std, out.shape)), value
+            return out
+        return out, jnp.broadcast_to(self.log_std, out.shape)
+
+    def __call__(
+        self, obs: jax.Array, critic_extra: jax.Array | None = None
+    ) -> tuple[jax.Array | tuple[jax.Array, jax.Array], jax.Array]:
+        critic_in = obs if critic_extra is None else jnp.concatenate([obs, critic_extra], -1)
+        value = self.critic(critic_in)[..., 0]
+        return self.policy(obs), value
 
 
 # ----------------------------------------------------------------------- distributions

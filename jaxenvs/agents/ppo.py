@@ -15,6 +15,12 @@ What the algorithm does (see also :mod:`jaxenvs.agents.losses`, :mod:`.networks`
   batch at every env step) kept in the training state; the policy sees
   ``clip((obs - mean) / std, -obs_clip, obs_clip)``. The rollout stores normalised
   observations, so the update uses exactly what the behaviour policy saw.
+* Asymmetric actor-critic: ``critic_info`` names scalar ``info`` entries of the task
+  (its metrics: privileged quantities such as the body's measured velocity) that the
+  critic sees after the observation and the policy never does. A state's entries are
+  those of the transition into it, zero at a fresh start (as a single env's reset
+  reports them); a finished episode's bootstrap reads its last transition's. They are
+  normalised with their own running statistics under ``normalize_obs``.
 * Reward scaling: rewards are multiplied by ``reward_scale``; with ``normalize_rewards``
   they are also divided by the running standard deviation of the discounted return
   (as Stable-Baselines3's ``VecNormalize``).
@@ -79,6 +85,8 @@ class PPOConfig:
       log_std_init: initial log standard deviation (continuous tasks).
       randomize: train on domain-randomised envs (each env draws its physics params from
         the task's ``sample_params`` at every reset).
+      critic_info: ``info`` keys (scalar task metrics) the critic also sees (the module
+        docstring); empty: the critic sees the observation alone.
     """
 
     total_steps: int = 500_000
@@ -105,6 +113,7 @@ class PPOConfig:
     critic_hidden: tuple[int, ...] = (64, 64)
     log_std_init: float = 0.0
     randomize: bool = False
+    critic_info: tuple[str, ...] = ()
 
     def validate(self) -> None:
         for name in ("total_steps", "num_envs", "num_steps", "updates_per_chunk"):
@@ -127,6 +136,9 @@ class PPOConfig:
         require(self.reward_scale > 0, "reward_scale", "must be positive")
         require(all(w > 0 for w in self.actor_hidden), "actor_hidden", "widths must be > 0")
         require(all(w > 0 for w in self.critic_hidden), "critic_hidden", "widths must be > 0")
+        require(
+            len(set(self.critic_info)) == len(self.critic_info), "critic_info", "has duplicates"
+        )
 
     @property
     def steps_per_update(self) -> int:
@@ -159,6 +171,8 @@ class RunnerState(NamedTuple):
     env_steps: jax.Array
     episodes: jax.Array
     updates: jax.Array
+    #: running statistics of the critic's ``critic_info`` inputs (``None`` without them)
+    critic_stats: RunningStats | None = None
 
 
 class PolicyParams(NamedTuple):
@@ -170,6 +184,7 @@ class PolicyParams(NamedTuple):
 
 class Transition(NamedTuple):
     obs: jax.Array
+    critic_extra: jax.Array  # (..., len(critic_info)) as the critic saw them
     action: jax.Array
     log_prob: jax.Array
     value: jax.Array
@@ -297,9 +312,28 @@ def chunk_metrics(rs: RunnerState, m: dict[str, jax.Array]) -> dict[str, jax.Arr
     }
 
 
-def apply_net(net: ActorCritic, params: PyTree, obs: jax.Array) -> tuple[Any, jax.Array]:
-    """The network's ``(policy output, value)`` of ``obs``."""
-    return net.apply(params, obs)  # type: ignore[return-value]
+def apply_net(
+    net: ActorCritic, params: PyTree, obs: jax.Array, critic_extra: jax.Array | None = None
+) -> tuple[Any, jax.Array]:
+    """The network's ``(policy output, value)`` of ``obs`` (and the critic's own inputs;
+    ``None`` or an empty last axis: none)."""
+    if critic_extra is not None and critic_extra.shape[-1] == 0:
+        critic_extra = None
+    return net.apply(params, obs, critic_extra)  # type: ignore[return-value]
+
+
+def critic_inputs(info: dict[str, jax.Array], keys: tuple[str, ...], fresh: Any) -> jax.Array:
+    """The ``keys`` entries of a batch's ``info`` as ``(num_envs, len(keys))`` float32,
+    zero where ``fresh`` (envs at the start of an episode; ``False``: none)."""
+    if not keys:
+        return jnp.zeros((info["episode_length"].shape[0], 0), jnp.float32)
+    x = jnp.stack([info[k].astype(jnp.float32) for k in keys], axis=-1)
+    return jnp.where(jnp.asarray(fresh)[..., None], 0.0, x)
+
+
+def observe_critic(stats: RunningStats | None, x: jax.Array, config: PPOConfig) -> jax.Array:
+    """What the critic sees of its ``critic_info`` inputs ``x`` (as :func:`observe`)."""
+    return x if stats is None or not config.normalize_obs else normalize(stats, x, config.obs_clip)
 
 
 def observe(stats: RunningStats, obs: jax.Array, config: PPOConfig) -> jax.Array:
@@ -316,14 +350,27 @@ def make_env_step(
     c = config
 
     def env_step(rs: RunnerState, key: jax.Array) -> tuple[RunnerState, Transition]:
-        obs = observe(rs.obs_stats, rs.env_state.obs, c)
-        out, value = apply_net(net, rs.params, obs)
+        state = rs.env_state
+        obs = observe(rs.obs_stats, state.obs, c)
+        extra = critic_inputs(state.info, c.critic_info, state.time == 0)
+        extra = observe_critic(rs.critic_stats, extra, c)
+        out, value = apply_net(net, rs.params, obs, extra)
         action = head.sample(out, key)
         logp = head.log_prob(out, action)
         env_action = action if benv.env.discrete else jnp.clip(action, -1.0, 1.0)
         nxt = benv.step(rs.env_state, env_action)
         obs_stats = stats_update(rs.obs_stats, nxt.obs) if c.normalize_obs else rs.obs_stats
-        _, next_value = apply_net(net, rs.params, observe(obs_stats, nxt.info["final_obs"], c))
+        critic_stats = rs.critic_stats
+        if critic_stats is not None and c.normalize_obs:
+            fresh = critic_inputs(nxt.info, c.critic_info, nxt.time == 0)
+            critic_stats = stats_update(critic_stats, fresh)
+        final_extra = critic_inputs(nxt.info, c.critic_info, False)
+        _, next_value = apply_net(
+            net,
+            rs.params,
+            observe(obs_stats, nxt.info["final_obs"], c),
+            observe_critic(critic_stats, final_extra, c),
+        )
         reward = nxt.reward * c.reward_scale
         disc_return = rs.disc_return * c.gamma + reward
         ret_stats = rs.ret_stats
@@ -333,6 +380,7 @@ def make_env_step(
         done = nxt.done
         trans = Transition(
             obs=obs,
+            critic_extra=extra,
             action=action,
             log_prob=logp,
             value=value,
@@ -346,6 +394,7 @@ def make_env_step(
         )
         rs = rs._replace(
             obs_stats=obs_stats,
+            critic_stats=critic_stats,
             ret_stats=ret_stats,
             disc_return=jnp.where(done, 0.0, disc_return),
             env_state=nxt,
@@ -371,7 +420,7 @@ def make_epoch(
     def loss_fn(
         params: PyTree, batch: Transition, adv: jax.Array, ret: jax.Array
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
-        out, value = apply_net(net, params, batch.obs)
+        out, value = apply_net(net, params, batch.obs, batch.critic_extra)
         logp = head.log_prob(out, batch.action)
         return losses.ppo_loss(
             logp,
@@ -420,16 +469,28 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
     c = config
     tx = make_optimizer(c)
     obs_dim = single.observation_size
+    keys = c.critic_info
+    known = tuple(single.metric_keys)
+    unknown = [k for k in keys if k not in known]
+    if unknown:
+        raise ValueError(
+            f"critic_info: {', '.join(unknown)} not among {type(single).__name__}'s metrics "
+            f"({', '.join(known) or 'none'})"
+        )
     env_step = make_env_step(benv, net, head, c)
     epoch = make_epoch(net, head, tx, c)
 
     def init(key: jax.Array) -> RunnerState:
         net_key, env_key, run_key = jax.random.split(key, 3)
-        params = net.init(net_key, jnp.zeros((obs_dim,), jnp.float32))
+        extra = jnp.zeros((len(keys),), jnp.float32) if keys else None
+        params = net.init(net_key, jnp.zeros((obs_dim,), jnp.float32), extra)
         env_state = benv.reset(env_key)
         obs_stats = stats_init((obs_dim,))
+        critic_stats = stats_init((len(keys),)) if keys else None
         if c.normalize_obs:
             obs_stats = stats_update(obs_stats, env_state.obs)
+            if critic_stats is not None:
+                critic_stats = stats_update(critic_stats, critic_inputs(env_state.info, keys, True))
         return RunnerState(
             params=params,
             opt_state=tx.init(params),
@@ -441,6 +502,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
             env_steps=jnp.zeros((), jnp.int32),
             episodes=jnp.zeros((), jnp.int32),
             updates=jnp.zeros((), jnp.int32),
+            critic_stats=critic_stats,
         )
 
     def update(rs: RunnerState, _: None) -> tuple[RunnerState, dict[str, jax.Array]]:
@@ -480,7 +542,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
 
     def act(pp: PolicyParams, obs: jax.Array, key: jax.Array) -> jax.Array:
         del key  # the greedy policy is deterministic
-        out, _ = apply_net(net, pp.params, observe(pp.obs_stats, obs, c))
+        out = net.apply(pp.params, observe(pp.obs_stats, obs, c), method="policy")
         return head.mode(out)
 
     return Trainer(

@@ -23,7 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("env_id", nargs="?", help="env id (or env.id in the config file)")
     parser.add_argument("--algo", choices=sorted(ALGORITHMS), help="the learning algorithm")
-    parser.add_argument("--config", metavar="FILE", help="YAML file: env/agent/train sections")
+    parser.add_argument(
+        "--config",
+        metavar="FILE",
+        help="YAML file: env/agent/train sections, or the name of a shipped config "
+        "(e.g. ppo_HexapodJoystick-v0.link.yaml)",
+    )
     parser.add_argument("--seed", type=int, help="base seed (default 0)")
     parser.add_argument("--num-seeds", type=int, help="independent seeds trained together")
     parser.add_argument("--num-envs", type=int, help="parallel envs per seed")

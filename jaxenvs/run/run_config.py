@@ -161,6 +161,8 @@ def resolve_config(
     data: dict[str, Any] = {}
     if config_file is None and env_id is not None and algo is not None:
         config_file = shipped_config(algo, env_id)
+    elif config_file is not None:
+        config_file = locate_config(config_file)
     file_src = str(config_file) if config_file is not None else source
     if config_file is not None:
         data = load_yaml(config_file)
@@ -195,10 +197,26 @@ def resolve_config(
     return ResolvedConfig(env_id, task_config, algo, agent, run)
 
 
+def locate_config(name: str | Path) -> Path:
+    """``name`` as a path when that file exists; else, for a bare file name, the shipped
+    config of that name (``configs/<name>``, e.g. ``ppo_HexapodJoystick-v0.link.yaml``)
+    when there is one; else ``name`` (whose load then reports it missing)."""
+    path = Path(name)
+    shipped = CONFIGS_DIR / path.name
+    if not path.is_file() and path.name == str(name) and shipped.is_file():
+        return shipped
+    return path
+
+
+#: the shipped configs: ``<algo>_<env id>.yaml`` (the default of that pair) and
+#: ``<algo>_<env id>.<variant>.yaml`` (a variant for one purpose, chosen by name)
+CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
 def shipped_config(algo: str, env_id: str) -> Path | None:
     """The tuned config shipped for ``algo`` on ``env_id``, ``configs/<algo>_<id>.yaml``,
     used when no ``--config`` is given; ``None`` when there is none."""
-    path = Path(__file__).resolve().parent.parent / "configs" / f"{algo}_{env_id}.yaml"
+    path = CONFIGS_DIR / f"{algo}_{env_id}.yaml"
     return path if path.is_file() else None
 
 

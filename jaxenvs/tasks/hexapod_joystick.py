@@ -247,7 +247,9 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
       a_prev|^2 - energy_weight * sum|tau * qdot| + alive_bonus``; ``v_z`` and ``w`` from
       the body-frame velocimeter and gyro at the step's end.
     * Metrics: ``lin_error`` (|cmd_xy - v_xy|, m/s), ``yaw_error`` (|cmd_yaw - yaw rate|,
-      rad/s), ``energy`` (W).
+      rad/s), ``energy`` (W), the step's velocity ``vel_forward``, ``vel_lateral`` (m/s)
+      and ``yaw_rate`` (rad/s), and the body's ``height`` (m) at its end: privileged
+      (a critic may see them: PPO's ``critic_info``).
     * Termination: height < ``min_height`` or the up axis' z-component < ``min_upright``
       (as ``HexapodWalk-v0``). Truncation: ``episode_length`` steps.
     * Start: body at 0.14 m with a random yaw, joints uniform in +-0.05 rad around the
@@ -261,7 +263,15 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     cpu_physics = "c"
     robot: Hexapod
 
-    metric_keys = ("lin_error", "yaw_error", "energy")
+    metric_keys = (
+        "lin_error",
+        "yaw_error",
+        "energy",
+        "vel_forward",
+        "vel_lateral",
+        "yaw_rate",
+        "height",
+    )
     #: the test battery's vmap-vs-single tolerance (as ``HexapodWalk-v0``)
     vmap_atol = 1e-2
     observation_size = 63  # the size without delay; an instance has its config's
@@ -466,7 +476,15 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             - c.energy_weight * energy
             + c.alive_bonus
         )
-        metrics = {"lin_error": jnp.sqrt(lin_sq), "yaw_error": jnp.sqrt(yaw_sq), "energy": energy}
+        metrics = {
+            "lin_error": jnp.sqrt(lin_sq),
+            "yaw_error": jnp.sqrt(yaw_sq),
+            "energy": energy,
+            "vel_forward": vel[0],
+            "vel_lateral": vel[1],
+            "yaw_rate": vel[2],
+            "height": data.qpos[2],
+        }
         return reward, metrics
 
     def _terminated(
