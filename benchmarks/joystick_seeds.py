@@ -23,14 +23,14 @@ sensor biases are kept, so a run trained for the robot's link is measured with t
 
 ``eval`` writes its figures to ``RUN/joystick_eval_mjx.json`` (or ``_c.json``); ``table``
 collects them, with each run's summary.json, into one record per run
-(``benchmarks/results/ppo_joystick_seeds_h200.json``); ``slim`` writes a run's greedy
+(``benchmarks/results/ppo_joystick_seeds_h100.json``); ``slim`` writes a run's greedy
 policy to ``RUN/policy.npz``, which ``eval`` reads where the full ``checkpoint.npz`` was not
 kept (``walker_seeds.py`` says more).
 
     python benchmarks/joystick_seeds.py slim RUN
     python benchmarks/joystick_seeds.py eval RUN
     JAX_PLATFORMS=cpu python benchmarks/joystick_seeds.py eval RUN --physics c --envs 128
-    python benchmarks/joystick_seeds.py table RUN0 RUN1 RUN2 --json ppo_joystick_seeds_h200
+    python benchmarks/joystick_seeds.py table RUN0 RUN1 RUN2 --json ppo_joystick_seeds_h100
     MUJOCO_GL=egl JAX_PLATFORMS=cpu python benchmarks/joystick_seeds.py drive RUN --physics c \\
         --gif benchmarks/images/hexapod_joystick.gif
 
