@@ -167,6 +167,7 @@ def _traj() -> ppo.Transition:
     zeros = jnp.zeros((3, 2))
     return ppo.Transition(
         obs=zeros[..., None],
+        critic_extra=zeros[..., :0],
         action=zeros.astype(jnp.int32),
         log_prob=zeros,
         value=zeros,
