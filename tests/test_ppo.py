@@ -241,8 +241,9 @@ def test_critic_info_feeds_the_critic_alone():
     """``critic_info``: the critic's first layer takes the observation and the named
     metrics, the actor's the observation alone (its params as without them); a state's
     inputs are the metrics of the transition into it, zero at a fresh start, and a
-    finished episode's bootstrap reads its last transition's; a chunk trains with them
-    and the greedy policy needs none; an unknown key is refused by name."""
+    finished episode's bootstrap reads its last transition's (non-finite ones read as
+    zero); a chunk trains with them and updates their statistics at every env step; the
+    greedy policy needs none; an unknown key is refused by name."""
     env = jaxenvs.make("CartpoleStayUp-v0", episode_length=3)
     plain = ppo.PPOConfig(
         total_steps=16, num_envs=4, num_steps=4, updates_per_chunk=1, num_minibatches=2,
@@ -277,9 +278,13 @@ def test_critic_info_feeds_the_critic_alone():
     fresh = ppo.critic_inputs(state.info, ("command",), state.time == 0)
     np.testing.assert_array_equal(fresh, 0.0)  # a fresh start's: zero, as env.reset's
 
+    n0 = float(rs.critic_stats.n)
     rs, metrics = jax.jit(trainer.chunk)(rs)
     assert np.isfinite(float(metrics["value_loss"]))
-    assert rs.critic_stats is not None and float(rs.critic_stats.var[0]) > 0
+    assert float(rs.critic_stats.n) == pytest.approx(n0 + 4 * 4)  # every env, every step
+    assert float(rs.critic_stats.mean[0]) != 0.0
+    bad = {"episode_length": jnp.zeros(2, jnp.int32), "command": jnp.array([jnp.nan, 2.0])}
+    np.testing.assert_array_equal(ppo.critic_inputs(bad, ("command",), False)[:, 0], [0, 2])
     act = trainer.act(trainer.policy_params(rs), state.obs[0], jax.random.key(2))
     assert act.shape == () and 0 <= int(act) < env.action_size
     with pytest.raises(ValueError, match="critic_info: nope not among"):

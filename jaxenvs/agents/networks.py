@@ -70,7 +70,8 @@ class ActorCritic(nn.Module):
 
     The critic sees ``obs`` followed by ``critic_extra`` (``(..., k)``: inputs only the
     critic has, e.g. privileged state in an asymmetric actor-critic); the actor sees
-    ``obs`` alone.
+    ``obs`` alone. A network initialised with ``critic_extra`` must be applied with one
+    of the same size (``policy`` needs none).
 
     ``policy_out`` is the logits ``(..., action_size)`` for a discrete task, else the pair
     ``(mean, log_std)`` each ``(..., action_size)``. ``value`` has shape ``(...)``.

@@ -19,8 +19,9 @@ What the algorithm does (see also :mod:`jaxenvs.agents.losses`, :mod:`.networks`
   (its metrics: privileged quantities such as the body's measured velocity) that the
   critic sees after the observation and the policy never does. A state's entries are
   those of the transition into it, zero at a fresh start (as a single env's reset
-  reports them); a finished episode's bootstrap reads its last transition's. They are
-  normalised with their own running statistics under ``normalize_obs``.
+  reports them); a truncated episode's bootstrap reads its last transition's (the
+  batched env keeps them through the auto-reset); non-finite entries read as zero. They
+  are normalised with their own running statistics under ``normalize_obs``.
 * Reward scaling: rewards are multiplied by ``reward_scale``; with ``normalize_rewards``
   they are also divided by the running standard deviation of the discounted return
   (as Stable-Baselines3's ``VecNormalize``).
@@ -322,13 +323,15 @@ def apply_net(
     return net.apply(params, obs, critic_extra)  # type: ignore[return-value]
 
 
-def critic_inputs(info: dict[str, jax.Array], keys: tuple[str, ...], fresh: Any) -> jax.Array:
+def critic_inputs(info: dict[str, jax.Array], keys: tuple[str, ...], zero: Any) -> jax.Array:
     """The ``keys`` entries of a batch's ``info`` as ``(num_envs, len(keys))`` float32,
-    zero where ``fresh`` (envs at the start of an episode; ``False``: none)."""
+    zero where ``zero`` (per env: a fresh start, or a terminal state whose value is never
+    used; ``False``: none) and where not finite (a diverged step's metrics, which the
+    env does not clean as it cleans the observation)."""
     if not keys:
         return jnp.zeros((info["episode_length"].shape[0], 0), jnp.float32)
     x = jnp.stack([info[k].astype(jnp.float32) for k in keys], axis=-1)
-    return jnp.where(jnp.asarray(fresh)[..., None], 0.0, x)
+    return jnp.where(jnp.asarray(zero)[..., None] | ~jnp.isfinite(x), 0.0, x)
 
 
 def observe_critic(stats: RunningStats | None, x: jax.Array, config: PPOConfig) -> jax.Array:
@@ -364,7 +367,7 @@ def make_env_step(
         if critic_stats is not None and c.normalize_obs:
             fresh = critic_inputs(nxt.info, c.critic_info, nxt.time == 0)
             critic_stats = stats_update(critic_stats, fresh)
-        final_extra = critic_inputs(nxt.info, c.critic_info, False)
+        final_extra = critic_inputs(nxt.info, c.critic_info, nxt.terminated)
         _, next_value = apply_net(
             net,
             rs.params,

@@ -39,7 +39,9 @@ counters, truncation at the episode length, divergence detection, and a fixed ``
 ``nan_actions``     1 if the last action held a NaN/inf (it was replaced by zeros)
 ``diverged``        True if the physics state became non-finite or passed the divergence
                     bound; such an env is terminated (and reset when batched)
-(task metrics)      fixed per task, e.g. ``distance`` for the reacher
+(task metrics)      fixed per task, e.g. ``distance`` for the reacher: of the last
+                    transition (zero after a reset; after an auto-reset, still the
+                    finished episode's last transition's)
 =================  =====================================================================
 """
 

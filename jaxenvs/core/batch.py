@@ -18,9 +18,10 @@ class BatchedEnv:
     Finished envs (terminated or truncated) come back already reset to a FRESH random
     initial state drawn with that env's own key; the finished episode's last observation,
     return and length stay in ``info["final_obs"]``, ``info["final_return"]`` and
-    ``info["final_length"]``, and ``reward``/``terminated``/``truncated`` still describe
-    the transition that ended it. With ``randomize=True`` each env draws its own params
-    from ``env.sample_params`` at every reset (domain randomisation): its state is
+    ``info["final_length"]``, and ``reward``/``terminated``/``truncated`` and the task's
+    metrics in ``info`` still describe the transition that ended it. With
+    ``randomize=True`` each env draws its own params from ``env.sample_params`` at every
+    reset (domain randomisation): its state is
     ``env.reset(k, params)``'s for its key ``k``, the params drawn from
     ``jax.random.split(k, 4)[3]`` (with JAX's default partitionable threefry).
 
