@@ -98,7 +98,10 @@ def test_the_built_env_records_its_engine():
 
 
 @pytest.mark.full
-def test_every_provided_field_is_finite_after_a_walker_step():
+def test_every_provided_field_is_finite_after_a_walker_step(monkeypatch):
+    from jaxenvs.tasks.hexapod import HexapodWalk
+
+    monkeypatch.setattr(HexapodWalk, "derived_fields", None)  # every field
     env = jaxenvs.make("HexapodWalk-v0", physics="c")
     state = jax.jit(env.step)(jax.jit(env.reset)(jax.random.key(0)), jnp.zeros(18))
     data = state.data
@@ -190,6 +193,36 @@ def test_domain_randomisation_is_honoured():
         states = step(states, jnp.ones((2, 1)), params)
     qpos = np.asarray(states.data.qpos)
     assert np.abs(qpos[0] - qpos[1]).max() > 1e-3
+
+
+def test_the_engine_writes_only_the_derived_fields_a_task_reads():
+    """A task's ``derived_fields`` are written as by an engine that writes every field (bit
+    for bit, the state too); the others are Unavailable and reading one names the
+    attribute; an unknown name is refused."""
+    env = jaxenvs.make("CartpoleBalance-v0", physics="c")
+    assert env.derived_fields == () and env.sim.derived == ()
+    base = jaxenvs.make("CartpoleBalance-v0", physics="mjx").sim
+    full, some = base.with_physics("c"), base.with_physics("c", derived=("actuator_force",))
+    data = env.reset(jax.random.key(0)).data
+    assert isinstance(data.xpos, cengine.Unavailable)
+    with pytest.raises(cengine.CEngineError, match="'xpos'.*derived_fields"):
+        _ = data.xpos + 1.0
+    ctrl = jnp.ones(1)
+    a = jax.jit(full.step)(None, full._data0.replace(qpos=data.qpos, qvel=data.qvel), ctrl)
+    b = jax.jit(some.step)(None, some._data0.replace(qpos=data.qpos, qvel=data.qvel), ctrl)
+    c = jax.jit(env.sim.step)(None, data, ctrl)
+    for name in ("qpos", "qvel", "qacc_warmstart", "time"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        np.testing.assert_array_equal(getattr(a, name), getattr(c, name))
+    np.testing.assert_array_equal(a.actuator_force, b.actuator_force)
+    assert float(jnp.abs(b.actuator_force).max()) > 0
+    assert isinstance(b.xpos, cengine.Unavailable) and isinstance(
+        c.actuator_force, cengine.Unavailable
+    )
+    n_full = len(jax.tree.leaves(a))
+    assert len(jax.tree.leaves(b)) == len(jax.tree.leaves(c)) + 1 < n_full
+    with pytest.raises(cengine.CEngineError, match="derived_fields: nope"):
+        base.with_physics("c", derived=("nope",))
 
 
 def test_unknown_params_field_is_refused_by_name():

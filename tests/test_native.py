@@ -31,6 +31,22 @@ from jaxenvs.testing import check_engine_parity
 NATIVE_OFF = os.environ.get(native.ENV_VAR, "1") == "0"
 
 
+@pytest.fixture
+def every_field(monkeypatch):
+    """The shipped tasks' C engines write every derived field (``derived_fields = None``),
+    for the checks of every field against MJX and across paths."""
+    from jaxenvs.tasks import cartpole, hexapod, hexapod_joystick, reacher
+
+    for cls in (
+        cartpole._CartpoleTask,
+        reacher.Reacher,
+        hexapod.HexapodWalk,
+        hexapod.HexapodOneLeg,
+        hexapod_joystick.HexapodJoystick,
+    ):
+        monkeypatch.setattr(cls, "derived_fields", None)
+
+
 def test_the_install_built_the_native_engine():
     """CI installs from a clean clone: the native engine must be there and load (unless
     this run turns it off on purpose, when the callback path must be the one used)."""
@@ -46,13 +62,22 @@ def test_the_install_built_the_native_engine():
 def _engines(env_id: str, **overrides):
     env = jaxenvs.make(env_id, physics="c", **overrides)
     base = jaxenvs.make(env_id, physics="mjx", **overrides).sim
-    other = cengine.CEngine(base.physics_mj_model, base._data0, env.sim.engine.threads, "callback")
+    other = cengine.CEngine(
+        base.physics_mj_model,
+        base._data0,
+        env.sim.engine.threads,
+        "callback",
+        derived=env.derived_fields,
+    )
     return env, other
 
 
 @pytest.mark.full
 @pytest.mark.parametrize("env_id", ["CartpoleBalance-v0", "HexapodWalk-v0"])
-def test_callback_path_matches_native_bit_for_bit(env_id):
+@pytest.mark.parametrize("fields", ["every", "the task's"])
+def test_callback_path_matches_native_bit_for_bit(env_id, fields, request):
+    if fields == "every":
+        request.getfixturevalue("every_field")
     env, callback = _engines(env_id)
     if env.sim.engine.path != "native":
         pytest.fail(f"the native engine is not loaded: {native.unavailable_reason()}")
@@ -98,7 +123,7 @@ def _one_step_both(env_id: str, steps: int = 2, **overrides):
         for e in ("CartpoleStayUp-v0", "CartpoleBalance-v0", "Reacher-v0", "HexapodOneLeg-v0")
     ],
 )
-def test_every_provided_field_matches_mjx(env_id):
+def test_every_provided_field_matches_mjx(env_id, every_field):
     """Every field the C engine writes (poses, com quantities, qacc, actuator
     quantities, the mass matrix, ...) holds what MJX computes for the same step."""
     out, env = _one_step_both(env_id)
@@ -115,7 +140,7 @@ def test_every_provided_field_matches_mjx(env_id):
 
 
 @pytest.mark.full  # the walker's MJX compile (~11 s on 2 cores)
-def test_walker_fields_match_mjx_in_the_air():
+def test_walker_fields_match_mjx_in_the_air(every_field):
     out, env = _one_step_both("HexapodWalk-v0", steps=1, init_height=0.3)
     for name, in_impl in env.sim.engine.layout.outputs:
         got = getattr(out["c"]._impl if in_impl else out["c"], name)
@@ -125,7 +150,10 @@ def test_walker_fields_match_mjx_in_the_air():
 
 
 class _ReadsPoses(CartpoleBalance):
-    """A user's task whose observation reads a body position, a site position and qacc."""
+    """A user's task whose observation reads a body position, a site position and qacc
+    (which it declares: the C engine writes them)."""
+
+    derived_fields = ("xpos", "site_xpos", "qacc")
 
     def _observe(self, key, data, extras, params):  # type: ignore[no-untyped-def]
         base = super()._observe(key, data, extras, params)
@@ -198,7 +226,7 @@ def test_contact_arrays_refuse_to_be_read_naming_the_field():
 
 
 @pytest.mark.full
-def test_forward_fills_derived_fields_like_mjx():
+def test_forward_fills_derived_fields_like_mjx(every_field):
     c = jaxenvs.make("Reacher-v0", physics="c")
     m = jaxenvs.make("Reacher-v0", physics="mjx")
     data = c.reset(jax.random.key(0)).data
@@ -295,7 +323,7 @@ for devices in (2, 1):
     def roll(key, b=b):
         def body(s, k):
             s = b.step(s, jax.random.uniform(k, (8, 1), minval=-1, maxval=1))
-            return s, (s.obs, s.reward, s.done, s.data.xpos)
+            return s, (s.obs, s.reward, s.done, s.data.qpos, s.data.qvel)
         return jax.lax.scan(body, b.reset(key), jax.random.split(key, 40))[1]
     outs.append(jax.device_get(jax.jit(roll)(jax.random.key(0))))
     print("DEVICES", b.devices)

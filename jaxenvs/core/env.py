@@ -156,6 +156,14 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: (:func:`jaxenvs.physics.resolve_engine`); ``None``: ``cpu_physics`` at every size.
     cpu_mjx_from: int | None = None
 
+    #: the derived ``mjx.Data`` fields the task reads (``sensordata``, ``actuator_force``,
+    #: ``site_xpos``, ...; the state ``qpos``, ``qvel``, ... and the inputs such as
+    #: ``mocap_pos`` are always there). Under ``physics="c"`` the engine writes only these,
+    #: and a state holds :class:`jaxenvs.physics.cengine.Unavailable` for the others, which
+    #: raises naming this attribute when read. ``None``: every field (a task that does not
+    #: say). MJX computes every field whatever this says.
+    derived_fields: tuple[str, ...] | None = None
+
     def __init__(self, config: ConfigT, sim: Sim) -> None:
         requested = getattr(config, "physics", "auto")
         physics = resolve_engine(type(self), requested)
@@ -164,7 +172,9 @@ class Env(abc.ABC, Generic[ConfigT]):
         self.config = config
         #: the engine stepping this env: ``"mjx"`` or ``"c"``
         self.physics = physics
-        self.sim = sim if physics == "mjx" else sim.with_physics(physics)
+        self.sim = (
+            sim if physics == "mjx" else sim.with_physics(physics, derived=self.derived_fields)
+        )
         if physics == "c":
             # unrolling lets XLA fuse across MJX steps; a C step is a host call that
             # cannot fuse, so unrolled copies would only add compile time

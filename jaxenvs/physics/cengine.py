@@ -28,7 +28,10 @@ another process; a one-device program is unchanged.
 ``userdata``) and writes the state it advances (:data:`ADVANCED`) and every derived field
 ``mjx.Data`` shares with MuJoCo's ``mjData`` (body, geom and site poses, centre-of-mass
 quantities, ``sensordata``, ``qacc``, actuator quantities, the mass matrix, ...), with MJX's
-convention: derived fields describe the state before the last substep. A field the step
+convention: derived fields describe the state before the last substep. Given ``derived``
+(the derived fields a task reads: ``Env.derived_fields``), it writes only those: copying
+fields out of every env's ``mjData`` is much of a small model's step, and the others hold
+:class:`Unavailable` (reading one raises, naming ``derived_fields``). A field the step
 does not compute for this model (``qfrc_inverse``; ``cacc`` without a sensor that needs it)
 is 0, as in a fresh ``mjx.Data``. The contact and constraint arrays (``contact``, ``efc_*``),
 whose layouts differ between the engines, hold :class:`Unavailable`: reading one raises
@@ -121,12 +124,20 @@ class Unavailable:
     ``jnp.asarray``) raises :class:`CEngineError` naming the field.
     """
 
-    __slots__ = ("name",)
+    __slots__ = ("name", "why")
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, why: str = "layout") -> None:
         object.__setattr__(self, "name", name)
+        #: ``"layout"`` (the C engine has no such field) or ``"undeclared"`` (the task's
+        #: ``derived_fields`` leave it out, so the engine does not write it)
+        object.__setattr__(self, "why", why)
 
     def fail(self) -> Any:
+        if self.why == "undeclared":
+            raise CEngineError(
+                f"mjx.Data field {self.name!r} is not written by physics='c' for this task: "
+                "add it to the task's derived_fields (the derived fields it reads)"
+            )
         raise CEngineError(
             f"mjx.Data field {self.name!r} is not provided by physics='c' (MuJoCo C lays "
             "out contacts and constraints differently from MJX): read it under "
@@ -157,13 +168,13 @@ class Unavailable:
         return int(self.fail())
 
     def __repr__(self) -> str:
-        return f"Unavailable({self.name!r}: not provided by physics='c')"
+        return f"Unavailable({self.name!r}: not provided by physics='c', {self.why})"
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Unavailable) and other.name == self.name
+        return isinstance(other, Unavailable) and (other.name, other.why) == (self.name, self.why)
 
     def __hash__(self) -> int:
-        return hash(("jaxenvs.physics.cengine.Unavailable", self.name))
+        return hash(("jaxenvs.physics.cengine.Unavailable", self.name, self.why))
 
 
 def _fail_op(self: Unavailable, *args: Any) -> Any:
@@ -177,7 +188,7 @@ for _op in ("neg", "pos", "abs", "lt", "le", "gt", "ge", "float", "int", "iter")
     setattr(Unavailable, f"__{_op}__", _fail_op)
 
 jax.tree_util.register_pytree_node(
-    Unavailable, lambda u: ((), u.name), lambda name, _: Unavailable(name)
+    Unavailable, lambda u: ((), (u.name, u.why)), lambda aux, _: Unavailable(*aux)
 )
 
 
@@ -191,20 +202,31 @@ class Layout:
         ``data._impl``), :data:`ADVANCED` first.
       unavailable: ``data._impl`` fields the C engine does not provide.
       shapes: each input's and output's shape for one env.
+      skipped: ``(name, in_impl)`` of the derived fields it provides but does not write
+        (those a task's ``derived_fields`` leave out).
     """
 
     inputs: tuple[str, ...]
     outputs: tuple[tuple[str, bool], ...]
     unavailable: tuple[str, ...]
     shapes: Mapping[str, tuple[int, ...]]
+    skipped: tuple[tuple[str, bool], ...] = ()
 
 
-def layout(model: mujoco.MjModel, template: mjx.Data) -> Layout:
-    """The :class:`Layout` of ``model`` for an ``mjx.Data`` shaped like ``template``."""
+def layout(
+    model: mujoco.MjModel, template: mjx.Data, derived: Sequence[str] | None = None
+) -> Layout:
+    """The :class:`Layout` of ``model`` for an ``mjx.Data`` shaped like ``template``,
+    writing every derived field it provides, or only those named in ``derived``."""
     c_data = mujoco.MjData(model)
     inputs: list[str] = []
     outputs: list[tuple[str, bool]] = [(n, False) for n in ADVANCED]
     unavailable: list[str] = []
+    skipped: list[tuple[str, bool]] = []
+
+    def write(name: str, in_impl: bool) -> None:
+        (outputs if derived is None or name in derived else skipped).append((name, in_impl))
+
     shapes: dict[str, tuple[int, ...]] = {}
 
     def matches(name: str, leaf: Any) -> bool:
@@ -228,7 +250,7 @@ def layout(model: mujoco.MjModel, template: mjx.Data) -> Layout:
             if np.size(leaf) or name == "time":
                 inputs.append(name)
         elif name not in ADVANCED and np.size(leaf) and matches(name, leaf):
-            outputs.append((name, False))
+            write(name, False)
         elif np.size(leaf) and name not in ("history", "plugin_state"):
             raise CEngineError(f"physics='c' has no value for mjx.Data field {name!r}")
     impl = template._impl
@@ -242,10 +264,16 @@ def layout(model: mujoco.MjModel, template: mjx.Data) -> Layout:
             if not np.size(leaf):
                 continue
             if matches(name, leaf):
-                outputs.append((name, True))
+                write(name, True)
                 continue
         unavailable.append(name)
-    return Layout(tuple(inputs), tuple(outputs), tuple(unavailable), shapes)
+    unknown = sorted(set(derived or ()) - {n for n, _ in outputs + skipped} - set(INPUTS))
+    if unknown:
+        raise CEngineError(
+            f"derived_fields: {', '.join(unknown)} not among the mjx.Data fields "
+            "physics='c' provides for this model"
+        )
+    return Layout(tuple(inputs), tuple(outputs), tuple(unavailable), shapes, tuple(skipped))
 
 
 def check_model(model: mujoco.MjModel) -> None:
@@ -285,17 +313,23 @@ class CEngine:
       threads: the pool's size (``jaxenvs.machine.cpu_threads()``).
       via: ``"native"`` or ``"callback"`` to force a path (tests compare them); default:
         the native engine where it loads (:func:`path`).
+      derived: the derived fields to write (``None``: every one it provides).
     """
 
     def __init__(
-        self, model: mujoco.MjModel, template: mjx.Data, threads: int, via: str | None = None
+        self,
+        model: mujoco.MjModel,
+        template: mjx.Data,
+        threads: int,
+        via: str | None = None,
+        derived: Sequence[str] | None = None,
     ) -> None:
         check_model(model)
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.model = model
         self.threads = int(threads)
-        self.layout = layout(model, template)
+        self.layout = layout(model, template, derived)
         #: ``"native"`` or ``"callback"``
         self.path = via or path()
         if self.path not in ("native", "callback"):
@@ -311,10 +345,13 @@ class CEngine:
             self._callback = _Callback(model, self.threads, self.layout)
 
     def blank(self, data: mjx.Data) -> mjx.Data:
-        """``data`` with the fields this engine does not provide replaced by
-        :class:`Unavailable`."""
-        impl = data._impl.replace(**{n: Unavailable(n) for n in self.layout.unavailable})
-        return data.replace(_impl=impl)
+        """``data`` with the fields this engine does not provide or does not write replaced
+        by :class:`Unavailable`."""
+        lay = self.layout
+        low = {n: Unavailable(n) for n in lay.unavailable}
+        low.update({n: Unavailable(n, "undeclared") for n, in_impl in lay.skipped if in_impl})
+        top = {n: Unavailable(n, "undeclared") for n, in_impl in lay.skipped if not in_impl}
+        return data.replace(_impl=data._impl.replace(**low), **top)
 
     @functools.lru_cache(maxsize=64)  # noqa: B019 - one engine per Sim, kept for its life
     def field_shape(self, name: str) -> tuple[int, ...]:

@@ -100,12 +100,18 @@ class Sim:
     #: the physics engine that steps this world (``"mjx"``; :class:`CSim` is ``"c"``)
     physics = "mjx"
 
-    def with_physics(self, physics: str, threads: int | None = None) -> Sim:
-        """This world stepped by ``physics``: ``"mjx"`` (itself) or ``"c"`` (:class:`CSim`)."""
+    def with_physics(
+        self,
+        physics: str,
+        threads: int | None = None,
+        derived: tuple[str, ...] | None = None,
+    ) -> Sim:
+        """This world stepped by ``physics``: ``"mjx"`` (itself) or ``"c"`` (:class:`CSim`,
+        writing only the ``derived`` fields when given)."""
         if physics == "mjx":
             return self
         if physics == "c":
-            return CSim(self, threads)
+            return CSim(self, threads, derived)
         raise ValueError(f"physics must be 'mjx' or 'c', got {physics!r}")
 
     def model_with(self, fields: Mapping[str, jax.Array]) -> Any:
@@ -173,12 +179,15 @@ class CSim(Sim):
     themselves (the C engine applies them per env), :meth:`step`, :meth:`step_controlled`
     and :meth:`forward` call the C engine, and states hold
     :class:`jaxenvs.physics.cengine.Unavailable` where the C engine provides no value (the contact
-    and constraint arrays).
+    and constraint arrays) or, given ``derived`` (a task's ``derived_fields``), writes none
+    (every derived field but those).
     """
 
     physics = "c"
 
-    def __init__(self, base: Sim, threads: int | None = None) -> None:  # noqa: D107
+    def __init__(  # noqa: D107
+        self, base: Sim, threads: int | None = None, derived: tuple[str, ...] | None = None
+    ) -> None:
         from jaxenvs import machine
         from jaxenvs.physics import cengine
 
@@ -190,12 +199,23 @@ class CSim(Sim):
             )
         self.__dict__.update(base.__dict__)
         self.engine = cengine.CEngine(
-            base.physics_mj_model, base._data0, threads or machine.cpu_threads()
+            base.physics_mj_model,
+            base._data0,
+            threads or machine.cpu_threads(),
+            derived=derived,
         )
         self._data0 = self.engine.blank(base._data0)
+        #: the derived fields the engine writes (``None``: every one it provides)
+        self.derived = None if derived is None else tuple(derived)
 
-    def with_physics(self, physics: str, threads: int | None = None) -> Sim:
-        if physics == "c" and (threads is None or threads == self.engine.threads):
+    def with_physics(
+        self,
+        physics: str,
+        threads: int | None = None,
+        derived: tuple[str, ...] | None = None,
+    ) -> Sim:
+        same = derived is None or tuple(derived) == self.derived
+        if physics == "c" and (threads is None or threads == self.engine.threads) and same:
             return self
         raise ValueError("build a C world from the MJX Sim it was made from")
 

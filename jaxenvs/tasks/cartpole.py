@@ -69,6 +69,8 @@ class _CartpoleTask(RobotTask):
     #: physics="auto" on a CPU: C, and MJX from 256 envs (benchmarks/RESULTS.md,
     #: "physics='auto' on a CPU")
     cpu_physics = "c"
+    #: every reading comes from qpos/qvel: the C engine writes no derived field
+    derived_fields: tuple[str, ...] | None = ()
     cpu_mjx_from: int | None = 256
     robot: Cartpole
 

@@ -229,6 +229,8 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
     """
 
     cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    #: the servos' forces (the energy term); every other reading comes from qpos/qvel
+    derived_fields: tuple[str, ...] | None = ("actuator_force",)
     robot: Hexapod
 
     metric_keys = ("distance", "progress", "energy", "targets_reached")
@@ -416,6 +418,8 @@ class HexapodOneLeg(RobotTask, Env[OneLegConfig]):
     """
 
     cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    #: every reading comes from qpos/qvel
+    derived_fields: tuple[str, ...] | None = ()
     robot: HexapodLeg
 
     metric_keys = ("distance",)

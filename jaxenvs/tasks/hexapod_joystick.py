@@ -261,6 +261,8 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     """
 
     cpu_physics = "c"
+    #: the servos' forces (the energy term); every other reading comes from qpos/qvel
+    derived_fields: tuple[str, ...] | None = ("actuator_force",)
     robot: Hexapod
 
     metric_keys = (

@@ -127,6 +127,8 @@ class Reacher(RobotTask, Env[ReacherConfig]):
     #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
     #: "physics='auto' on a CPU")
     cpu_physics = "c"
+    #: every reading comes from qpos/qvel (the target is mocap_pos, an input)
+    derived_fields: tuple[str, ...] | None = ()
     cpu_mjx_from = 4096
 
     metric_keys = ("distance", "ctrl_cost")
