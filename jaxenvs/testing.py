@@ -256,9 +256,11 @@ def check_engine_parity(
     every task metric must agree within ``atol`` (and a relative 1e-4) after every step.
     Continuous random actions are scaled by ``action_scale``.
 
-    The C engine fills only some ``mjx.Data`` fields and leaves the others NaN
-    (:mod:`jaxenvs.physics.cengine`), so a task that reads one of those fails here, naming what
-    differed, instead of silently reading a stale value. Raises :class:`TaskCheckError`.
+    The C engine writes only the derived fields the task declares in ``derived_fields``
+    (:mod:`jaxenvs.physics.cengine`); a task that reads another one fails here with the
+    engine's :class:`~jaxenvs.physics.cengine.CEngineError` naming the field and
+    ``derived_fields``, when its program is traced. A difference in the values raises
+    :class:`TaskCheckError`.
     """
     from jaxenvs import registry
 

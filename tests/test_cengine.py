@@ -223,6 +223,10 @@ def test_the_engine_writes_only_the_derived_fields_a_task_reads():
     assert len(jax.tree.leaves(b)) == len(jax.tree.leaves(c)) + 1 < n_full
     with pytest.raises(cengine.CEngineError, match="derived_fields: nope"):
         base.with_physics("c", derived=("nope",))
+    with pytest.raises(TypeError, match="not the string 'xpos'"):
+        base.with_physics("c", derived="xpos")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="from the MJX Sim"):
+        some.with_physics("c")  # every field: not the world built for actuator_force
 
 
 def test_unknown_params_field_is_refused_by_name():

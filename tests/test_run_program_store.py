@@ -71,6 +71,23 @@ def test_key_covers_config_shapes_and_source(tmp_path, monkeypatch):
     assert key("walk", {"a": 1}, _args()) != before
 
 
+def test_source_digest_covers_every_subpackage():
+    """A change to a task, the engines, the agents or the native engine's source makes a
+    new key, not only a change to the run package."""
+    names = {p.relative_to(program_cache._PACKAGE).as_posix() for p in program_cache.source_files()}
+    for name in (
+        "run/programs.py",
+        "agents/ppo.py",
+        "core/env.py",
+        "physics/cengine.py",
+        "physics/native/engine.cc",
+        "tasks/cartpole.py",
+        "robots/cartpole/cartpole.xml",
+        "configs/ppo_CartPole-v0.yaml",
+    ):
+        assert name in names, name
+
+
 def test_output_of_unknown_structure_is_not_stored(tmp_path):
     with pytest.warns(UserWarning, match="could not store program"):
         program = _store(tmp_path, known=())  # Carry is a custom node nobody described

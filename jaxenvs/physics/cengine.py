@@ -218,6 +218,10 @@ def layout(
 ) -> Layout:
     """The :class:`Layout` of ``model`` for an ``mjx.Data`` shaped like ``template``,
     writing every derived field it provides, or only those named in ``derived``."""
+    if isinstance(derived, str):
+        raise TypeError(
+            f"derived_fields must be a tuple of field names, not the string {derived!r}"
+        )
     c_data = mujoco.MjData(model)
     inputs: list[str] = []
     outputs: list[tuple[str, bool]] = [(n, False) for n in ADVANCED]
@@ -267,7 +271,9 @@ def layout(
                 write(name, True)
                 continue
         unavailable.append(name)
-    unknown = sorted(set(derived or ()) - {n for n, _ in outputs + skipped} - set(INPUTS))
+    empty = {n for n, shape in shapes.items() if not math.prod(shape)}  # nothing to write
+    known = {n for n, _ in outputs + skipped} | set(INPUTS) | empty
+    unknown = sorted(set(derived or ()) - known)
     if unknown:
         raise CEngineError(
             f"derived_fields: {', '.join(unknown)} not among the mjx.Data fields "
@@ -374,7 +380,8 @@ class CEngine:
         return self._call(fields, data, int(substeps))
 
     def forward(self, fields: Mapping[str, jax.Array], data: mjx.Data) -> mjx.Data:
-        """Every derived field at ``data``'s state (``mj_forward``); the state is kept."""
+        """The derived fields this engine writes (every one it provides, or those named
+        in ``derived``) at ``data``'s state (``mj_forward``); the state is kept."""
         out = self._call(fields, data, 0)
         return out.replace(**{n: getattr(data, n) for n in ADVANCED})
 

@@ -214,7 +214,7 @@ class CSim(Sim):
         threads: int | None = None,
         derived: tuple[str, ...] | None = None,
     ) -> Sim:
-        same = derived is None or tuple(derived) == self.derived
+        same = (None if derived is None else tuple(derived)) == self.derived
         if physics == "c" and (threads is None or threads == self.engine.threads) and same:
             return self
         raise ValueError("build a C world from the MJX Sim it was made from")
@@ -236,6 +236,8 @@ class CSim(Sim):
         return data
 
     def forward(self, model: Any, data: mjx.Data) -> mjx.Data:
+        """The derived fields this world writes (every one, or ``derived``'s) at
+        ``data``'s state."""
         return self.engine.forward(_fields(model), data)
 
 

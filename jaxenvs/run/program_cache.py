@@ -44,19 +44,28 @@ from jaxenvs import files
 
 #: subdirectory of the compile-cache directory that holds exported programs.
 SUBDIR = "programs"
-_PACKAGE = Path(__file__).resolve().parent
+#: the ``jaxenvs`` package (this file is ``jaxenvs/run/program_cache.py``)
+_PACKAGE = Path(__file__).resolve().parents[1]
 _SOURCE_SUFFIXES = (".py", ".xml", ".yaml", ".cc")
 _VERSIONED = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax")
 
 
+def source_files() -> list[Path]:
+    """The package's source, model and config files, every subpackage's, sorted."""
+    return [
+        path
+        for path in sorted(_PACKAGE.rglob("*"))
+        if path.suffix in _SOURCE_SUFFIXES and "__pycache__" not in path.parts
+    ]
+
+
 @functools.lru_cache(maxsize=1)
 def source_digest() -> str:
-    """SHA-256 over the package's source, model and config files (paths and contents)."""
+    """SHA-256 over :func:`source_files` (paths relative to the package, and contents)."""
     h = hashlib.sha256()
-    for path in sorted(_PACKAGE.rglob("*")):
-        if path.suffix in _SOURCE_SUFFIXES and "__pycache__" not in path.parts:
-            h.update(str(path.relative_to(_PACKAGE)).encode())
-            h.update(path.read_bytes())
+    for path in source_files():
+        h.update(str(path.relative_to(_PACKAGE)).encode())
+        h.update(path.read_bytes())
     return h.hexdigest()
 
 
