@@ -59,6 +59,9 @@ ALGORITHMS: dict[str, AlgoEntry] = {
 }
 
 SECTIONS = ("algo", "env", "agent", "train")
+#: the shipped configs: ``<algo>_<env id>.yaml`` (the default of that pair) and
+#: ``<algo>_<env id>.<variant>.yaml`` (a variant for one purpose, chosen by name)
+CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
 #: the files of a run directory (see :mod:`jaxenvs.run.runner`)
 CONFIG_FILE, PROGRESS_FILE, SUMMARY_FILE = "config.yaml", "progress.csv", "summary.json"
 CHECKPOINT_FILE, CURVE_FILE, VIDEO_FILE = "checkpoint.npz", "learning_curve.png", "video.mp4"
@@ -206,11 +209,6 @@ def locate_config(name: str | Path) -> Path:
     if not path.is_file() and path.name == str(name) and shipped.is_file():
         return shipped
     return path
-
-
-#: the shipped configs: ``<algo>_<env id>.yaml`` (the default of that pair) and
-#: ``<algo>_<env id>.<variant>.yaml`` (a variant for one purpose, chosen by name)
-CONFIGS_DIR = Path(__file__).resolve().parent.parent / "configs"
 
 
 def shipped_config(algo: str, env_id: str) -> Path | None:
