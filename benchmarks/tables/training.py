@@ -283,6 +283,7 @@ TABLES = {
     ),
     "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
     "walker-waypoints": Table(("ppo_walker_waypoints_h100",), walker_waypoints),
+    "joystick-seeds-lr": Table(("ppo_joystick_seeds_lr6e4_h100",), joystick_seeds),
     "joystick-seeds-critic": Table(("ppo_joystick_seeds_h100",), joystick_seeds),
     "joystick-seeds": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
     "joystick-seeds-gap": Table(("ppo_joystick_seeds_gap_h100",), joystick_seeds),
