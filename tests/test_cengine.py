@@ -65,18 +65,22 @@ def test_engine_parity(env_id):
 
 def test_engine_rule_by_backend_and_batch_size():
     """``physics="auto"``: MJX on an accelerator; on a CPU the task's ``cpu_physics``, and
-    MJX from its measured cross-over ``cpu_mjx_from`` on; ``"c"`` only on a CPU."""
+    MJX from its measured cross-over of ``cpu_mjx_from`` envs per CPU device on; ``"c"``
+    only on a CPU."""
     from jaxenvs.tasks.cartpole import CartPole
     from jaxenvs.tasks.hexapod import HexapodWalk
+    from jaxenvs.tasks.reacher import Reacher
 
     class Unmeasured:  # neither attribute: MJX everywhere
         pass
 
     assert CartPole.cpu_physics == "c" and CartPole.cpu_mjx_from is not None
+    cross = CartPole.cpu_mjx_from * jax.local_device_count("cpu")
     assert resolve_engine(CartPole, "auto", backend="cpu") == "c"
     assert resolve_engine(CartPole, "auto", 16, backend="cpu") == "c"
-    assert resolve_engine(CartPole, "auto", CartPole.cpu_mjx_from - 1, backend="cpu") == "c"
-    assert resolve_engine(CartPole, "auto", CartPole.cpu_mjx_from, backend="cpu") == "mjx"
+    assert resolve_engine(CartPole, "auto", cross - 1, backend="cpu") == "c"
+    assert resolve_engine(CartPole, "auto", cross, backend="cpu") == "mjx"
+    assert resolve_engine(Reacher, "auto", 1 << 20, backend="cpu") == "c"  # C at every size
     assert resolve_engine(CartPole, "auto", 1 << 20, backend="gpu") == "mjx"
     assert resolve_engine(CartPole, "auto", backend="gpu") == "mjx"
     assert resolve_engine(HexapodWalk, "auto", 1 << 20, backend="cpu") == "c"  # C at every size
@@ -89,6 +93,20 @@ def test_engine_rule_by_backend_and_batch_size():
         resolve_engine(CartPole, "warp")
     with pytest.raises(jaxenvs.ConfigError, match="physics"):
         jaxenvs.make("CartPole-v0", physics="C")
+
+
+def test_engine_rule_counts_envs_per_cpu_device(monkeypatch):
+    """The cross-over is per CPU device: with 8 host devices (a 16-core CPU) CartPole's
+    batch goes to MJX from 8 x ``cpu_mjx_from`` envs, not from ``cpu_mjx_from``."""
+    from jaxenvs.tasks.cartpole import CartPole
+
+    monkeypatch.setattr(jax, "local_device_count", lambda backend=None: 8)
+    per_device = CartPole.cpu_mjx_from
+    assert resolve_engine(CartPole, "auto", per_device, backend="cpu") == "c"
+    assert resolve_engine(CartPole, "auto", 8 * per_device - 1, backend="cpu") == "c"
+    assert resolve_engine(CartPole, "auto", 8 * per_device, backend="cpu") == "mjx"
+    # another machine's count, given (a benchmark record's)
+    assert resolve_engine(CartPole, "auto", per_device, backend="cpu", cpu_devices=1) == "mjx"
 
 
 def test_the_built_env_records_its_engine():
@@ -279,7 +297,8 @@ def test_every_maker_applies_the_engine_rule():
     on_cpu = jax.default_backend() == "cpu"
     for num_envs in (16, 4096):
         want = resolve_engine(CartPole, "auto", num_envs)
-        assert want == ("c" if on_cpu and num_envs < CartPole.cpu_mjx_from else "mjx")
+        cross = CartPole.cpu_mjx_from * jax.local_device_count()
+        assert want == ("c" if on_cpu and num_envs < cross else "mjx")
         assert jaxenvs.make("CartPole-v0", num_envs=num_envs).env.physics == want
         resolved = run_config.resolve_config(
             "CartPole-v0", "ppo", agent_overrides={"num_envs": num_envs}

@@ -12,8 +12,13 @@ benchmarks/RESULTS.md, section "physics='auto' on a CPU", from
 ``benchmarks/engines_sweep.sh``):
 
 * ``cpu_physics``: the engine a CPU steps the task with (``"mjx"`` unless measured);
-* ``cpu_mjx_from``: the batch size from which MJX's steady-state throughput passed the C
-  engine's on a CPU (``None``: never).
+* ``cpu_mjx_from``: the envs per CPU device from which MJX's steady-state throughput
+  passed the C engine's (``None``: never). The rule compares the batch with
+  ``cpu_mjx_from`` times the CPU's device count (:func:`jaxenvs.core.placement.host_devices_for`
+  of its cores): MJX spreads a batch over every device, each running its own slice's
+  program, while a C batch below 512 envs a device stays whole on one device with every
+  engine thread; on 16 cores (8 devices) CartPole's 256 envs ran faster under C and its
+  4,096 under MJX, on 2 cores (one device) MJX passed C at 256.
 """
 
 from __future__ import annotations
@@ -34,13 +39,16 @@ def resolve_engine(
     requested: str,
     num_envs: int | None = None,
     backend: str | None = None,
+    cpu_devices: int | None = None,
 ) -> str:
     """The engine, ``"mjx"`` or ``"c"``, that ``requested`` means for ``task`` (an
     :class:`jaxenvs.core.Env` subclass) in a batch of ``num_envs`` (``None``: one env) on
-    ``backend`` (default: JAX's default backend).
+    ``backend`` (default: JAX's default backend) with ``cpu_devices`` CPU devices
+    (default: the CPU backend's; a record of another machine passes its own).
 
     ``"auto"`` is MJX on an accelerator; on a CPU it is ``task.cpu_physics``, or MJX for
-    batches of at least ``task.cpu_mjx_from`` envs. ``"mjx"`` and ``"c"`` mean themselves,
+    batches of at least ``task.cpu_mjx_from`` envs per CPU device (``cpu_mjx_from x
+    cpu_devices``). ``"mjx"`` and ``"c"`` mean themselves,
     except that ``"c"`` on an accelerator raises ``ValueError`` (MuJoCo's C engine runs on
     the CPU only); any other value raises ``ValueError``.
     """
@@ -50,9 +58,11 @@ def resolve_engine(
     if requested == "auto":
         if backend != "cpu":
             return "mjx"
-        threshold = getattr(task, "cpu_mjx_from", None)
-        if num_envs is not None and threshold is not None and num_envs >= threshold:
-            return "mjx"
+        per_device = getattr(task, "cpu_mjx_from", None)
+        if per_device is not None and num_envs is not None:
+            devices = jax.local_device_count("cpu") if cpu_devices is None else cpu_devices
+            if num_envs >= per_device * devices:
+                return "mjx"
         return str(getattr(task, "cpu_physics", "mjx"))
     if requested == "c" and backend != "cpu":
         raise ValueError(

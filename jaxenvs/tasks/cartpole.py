@@ -66,8 +66,8 @@ class CartpoleRandomization(CartpoleRanges, TaskConfig):
 class _CartpoleTask(RobotTask):
     """What the four cartpole tasks share: the robot, params, the engine choice."""
 
-    #: physics="auto" on a CPU: C, and MJX from 256 envs (benchmarks/RESULTS.md,
-    #: "physics='auto' on a CPU")
+    #: physics="auto" on a CPU: C, and MJX from 256 envs per CPU device (256 on 2 cores,
+    #: 2,048 on 16; benchmarks/RESULTS.md, "physics='auto' on a CPU")
     cpu_physics = "c"
     #: every reading comes from qpos/qvel: the C engine writes no derived field
     derived_fields: tuple[str, ...] | None = ()

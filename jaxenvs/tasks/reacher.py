@@ -124,12 +124,12 @@ class Reacher(RobotTask, Env[ReacherConfig]):
     ``extras`` is :class:`~jaxenvs.core.NoExtras` (the target lives in ``data.mocap_pos``).
     """
 
-    #: physics="auto" on a CPU: C, and MJX from 4,096 envs (benchmarks/RESULTS.md,
-    #: "physics='auto' on a CPU")
+    #: physics="auto" on a CPU: C at every size (since the C engine writes back only the
+    #: declared derived fields it was at least MJX's throughput at 1-16,384 envs on 2 and
+    #: 16 cores; benchmarks/RESULTS.md, "physics='auto' on a CPU")
     cpu_physics = "c"
     #: every reading comes from qpos/qvel (the target is mocap_pos, an input)
     derived_fields: tuple[str, ...] | None = ()
-    cpu_mjx_from = 4096
 
     metric_keys = ("distance", "ctrl_cost")
     scan_unroll = 2
