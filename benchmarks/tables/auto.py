@@ -3,44 +3,53 @@ engine's costs (memory, first call)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 from .common import Cells, Rec, Table, by_engine, rate, rows, secs
 
 
 def engines_sweep(recs: list[Rec]) -> Cells:
-    """Both engines at each batch size, what physics='auto' picks there (the task's class
-    attribute ``cpu_mjx_from``, read from jaxenvs), and auto over the faster engine."""
+    """Both engines at each batch size, what physics='auto' picks there (today's rule: the
+    task's class attributes read from jaxenvs, with the record machine's CPU device count),
+    and auto over the faster engine."""
+    return _sweep(recs, auto=True)
+
+
+def engines_sweep_before(recs: list[Rec]) -> Cells:
+    """Both engines at each batch size, the faster one and C over MJX: a sweep taken
+    before the rule's evidence changed (the rule of its day is in the prose beside it)."""
+    return _sweep(recs, auto=False)
+
+
+def _sweep(recs: list[Rec], auto: bool) -> Cells:
     from jaxenvs import registry
     from jaxenvs.physics import resolve_engine
 
-    cells = [
-        [
-            "task",
-            "envs",
-            "MJX",
-            "C",
-            "auto picks",
-            "auto / faster",
-            "MJX first call",
-            "C first call",
-        ]
-    ]
+    picks = ["auto picks", "auto / faster"] if auto else ["faster", "C / MJX"]
+    cells = [["task", "envs", "MJX", "C", *picks, "MJX first call", "C first call"]]
     for rec, task, mjx, c in by_engine(recs):
         factory = registry.spec(task).factory
+        devices = rec.get("extra", {}).get("machine", {}).get("device_count", 1)
         by_c = {r["num_envs"]: r for r in c}
         for m in (m for m in mjx if m["num_envs"] in by_c):
             n = m["num_envs"]
             cr = by_c[n]
-            pick = resolve_engine(factory, "auto", n, backend="cpu")
-            got = (m if pick == "mjx" else cr)["env_steps_per_s"]
-            fast = max(m["env_steps_per_s"], cr["env_steps_per_s"])
+            m_rate, c_rate = m["env_steps_per_s"], cr["env_steps_per_s"]
+            if auto:
+                pick = resolve_engine(factory, "auto", n, backend="cpu", cpu_devices=devices)
+                got = m_rate if pick == "mjx" else c_rate
+                fast = max(m_rate, c_rate)
+                ratio = f"{got / fast:.2f}" + ("" if got / fast >= 0.9 else " (**below 0.9**)")
+            else:
+                pick, ratio = ("mjx" if m_rate > c_rate else "c"), f"{c_rate / m_rate:.2f}"
             cells.append(
                 [
                     task,
                     f"{n:,}",
-                    rate(m["env_steps_per_s"]),
-                    rate(cr["env_steps_per_s"]),
-                    str(pick),
-                    f"{got / fast:.2f}" + ("" if got / fast >= 0.9 else " (**below 0.9**)"),
+                    rate(m_rate),
+                    rate(c_rate),
+                    pick,
+                    ratio,
                     secs(m["first_call_s"]),
                     secs(cr["first_call_s"]),
                 ]
@@ -51,6 +60,26 @@ def engines_sweep(recs: list[Rec]) -> Cells:
                 cells.append(
                     [task, f"{r['num_envs']:,}", "", "", who, rate(r["env_steps_per_s"]), "", ""]
                 )
+    return cells
+
+
+def device_count(recs: list[Rec]) -> Cells:
+    """Each engine, task and batch under each host-device count of one record, and the
+    ratio of the larger count's throughput over the smaller's."""
+    (rec,) = recs
+    counts = sorted({r["host_devices"] for r in rows(rec)})
+    low, high = counts[0], counts[-1]
+    cells = [["task", "engine", "envs", *[f"{n} host devices" for n in counts], f"{high} / {low}"]]
+    got: dict[tuple[str, str, int, int], Any] = {}
+    for r in rows(rec):
+        got[(r["task"], r["physics"], r["num_envs"], r["host_devices"])] = r
+    for task, physics, n in sorted({k[:3] for k in got}, key=lambda k: (k[0], k[1], k[2])):
+        runs = [got.get((task, physics, n, d)) for d in counts]
+        if any(r is None for r in runs):
+            continue
+        figures = [f"{rate(r['env_steps_per_s'])} ({r['devices']})" for r in runs]
+        ratio = runs[-1]["env_steps_per_s"] / runs[0]["env_steps_per_s"]
+        cells.append([task, physics, f"{n:,}", *figures, f"{ratio:.2f}"])
     return cells
 
 
@@ -90,10 +119,13 @@ def _sweep_files(machine: str) -> tuple[str, ...]:
 
 
 TABLES = {
-    "engines-sweep-cpu16": Table(_sweep_files("cpu16"), engines_sweep),
-    "engines-sweep-cpu16-split": Table(_sweep_files("cpu16split"), engines_sweep),
-    "engines-sweep-cpu16-default": Table(_sweep_files("cpu16default"), engines_sweep),
-    "engines-sweep-cpu2": Table(_sweep_files("cpu2"), engines_sweep),
+    "engines-sweep-cpu16-fields": Table(_sweep_files("cpu16fields"), engines_sweep),
+    "engines-sweep-cpu2-fields": Table(_sweep_files("cpu2fields"), engines_sweep),
+    "engines-cpu16-device-count": Table(("engines_cpu16_device_count",), device_count),
+    "engines-sweep-cpu16": Table(_sweep_files("cpu16"), engines_sweep_before),
+    "engines-sweep-cpu16-split": Table(_sweep_files("cpu16split"), engines_sweep_before),
+    "engines-sweep-cpu16-default": Table(_sweep_files("cpu16default"), engines_sweep_before),
+    "engines-sweep-cpu2": Table(_sweep_files("cpu2"), engines_sweep_before),
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
     "c-memory-cpu2": Table(("c_memory_cpu2",), c_memory),
 }
