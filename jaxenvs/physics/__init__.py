@@ -14,8 +14,9 @@ benchmarks/RESULTS.md, section "physics='auto' on a CPU", from
 * ``cpu_physics``: the engine a CPU steps the task with (``"mjx"`` unless measured);
 * ``cpu_mjx_from``: the envs per CPU device from which MJX's steady-state throughput
   passed the C engine's (``None``: never). The rule compares the batch with
-  ``cpu_mjx_from`` times the CPU's device count (:func:`jaxenvs.core.placement.host_devices_for`
-  of its cores): MJX spreads a batch over every device, each running its own slice's
+  ``cpu_mjx_from`` times the CPU backend's device count (``jax.local_device_count("cpu")``:
+  one per two cores once :func:`jaxenvs.machine.use_cores` or a command has set it up, one
+  otherwise): MJX spreads a batch over every device, each running its own slice's
   program, while a C batch below 512 envs a device stays whole on one device with every
   engine thread; on 16 cores (8 devices) CartPole's 256 envs ran faster under C and its
   4,096 under MJX, on 2 cores (one device) MJX passed C at 256.
