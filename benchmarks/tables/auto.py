@@ -73,7 +73,7 @@ def device_count(recs: list[Rec]) -> Cells:
     got: dict[tuple[str, str, int, int], Any] = {}
     for r in rows(rec):
         got[(r["task"], r["physics"], r["num_envs"], r["host_devices"])] = r
-    for task, physics, n in sorted({k[:3] for k in got}, key=lambda k: (k[0], k[1], k[2])):
+    for task, physics, n in sorted({k[:3] for k in got}):
         runs = [got.get((task, physics, n, d)) for d in counts]
         if any(r is None for r in runs):
             continue
