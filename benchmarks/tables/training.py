@@ -125,7 +125,7 @@ def _seeds_row(rec: Rec, r: Row, evals: str) -> list[str]:
 
 
 def _walker_row(rec: Rec) -> list[str]:
-    """HexapodWalk-v0's line: the shipped config's seeds (waypoints, 30 chunks)."""
+    """HexapodWalk-v0's line: the shipped config's seeds (waypoints, 24 chunks)."""
     shipped = [r for r in rec["rows"] if r["config_diff"] == {}]
     ok = all(
         r["speed_m_per_s"] >= 0.5
@@ -256,6 +256,39 @@ def walker_waypoints(recs: list[Rec]) -> Cells:
     return _per_seed(rec, first, groups, _waypoint_figures)
 
 
+def walker_variants(recs: list[Rec]) -> Cells:
+    """HexapodWalk-v0 variants, one row per run: what it changed against the shipped
+    config (``config_diff``), then the waypoint figures on both engines."""
+    (rec,) = recs
+
+    def label(r: Row) -> str:
+        diff = r["config_diff"]
+        chunks = diff.get("agent.total_steps", r["env_steps"]) // 1048576
+        targets = diff.get("env.target_distance", "shipped")
+        return f"{r['seed']}: {chunks} chunks, targets {targets} m"
+
+    def cells(r: Row) -> list[str]:
+        return [
+            label(r),
+            f"{r['train_seconds']:.1f} s ({r['first_chunk_seconds']:.1f} s first chunk)",
+            *(
+                _waypoint_figures(r[g] if g else r)
+                for g in ("", "randomized", "mujoco_c", "mujoco_c_randomized")
+            ),
+        ]
+
+    head = [
+        "seed: variant",
+        "train wall",
+        "MJX: speed / fell 10 s / 3 m reached / targets per min / fell 50 s at 3 m",
+        "MJX, randomised",
+        "MuJoCo C",
+        "C, randomised",
+    ]
+    order = sorted(rec["rows"], key=lambda r: (r["env_steps"], r["seed"]))
+    return each_row(head, order, cells)
+
+
 def _joystick_figures(g: Row) -> str:
     fell = g["fell_fraction"] * 100
     return f"{g['tracking_error_lin']:.3f} / {g['tracking_error_yaw']:.3f} / {fell:.1f}%"
@@ -268,6 +301,29 @@ def joystick_seeds(recs: list[Rec]) -> Cells:
     return _per_seed(rec, "MJX: lin m/s / yaw rad/s / fell", groups, _joystick_figures)
 
 
+def joystick_variants(recs: list[Rec]) -> Cells:
+    """HexapodJoystick-v0 variants of one seed, one row per run (its ``variant``)."""
+    (rec,) = recs
+    groups = ("mjx", "mjx_randomized", "mujoco_c", "mujoco_c_randomized")
+
+    def cells(r: Row) -> list[str]:
+        return [
+            f"{r['seed']}: {r['variant']}",
+            f"{r['train_seconds']:.1f} s ({r['first_chunk_seconds']:.1f} s first chunk)",
+            *(_joystick_figures(r[g]) for g in groups),
+        ]
+
+    head = [
+        "seed: variant",
+        "train wall",
+        "MJX: lin m/s / yaw rad/s / fell",
+        "MJX, randomised",
+        "MuJoCo C",
+        "C, randomised",
+    ]
+    return each_row(head, rec["rows"], cells)
+
+
 TABLES = {
     "ppo-cold-cpu2": Table(("ppo_cartpole_cold_cpu2_engines",), ppo_cold_cpu2),
     "cross-engine": Table(("cross_engine_ppo_cpu2",), cross_engine),
@@ -277,12 +333,15 @@ TABLES = {
             "ppo_cartpole_cpu2_cold_warm",
             "ppo_cpu2_cartpoles_reacher",
             "ppo_cpu2_oneleg",
-            "ppo_walker_waypoints_h100",
+            "ppo_walker_waypoints_h200",
         ),
         ppo,
     ),
     "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
-    "walker-waypoints": Table(("ppo_walker_waypoints_h100",), walker_waypoints),
+    "walker-waypoints": Table(("ppo_walker_waypoints_h200",), walker_waypoints),
+    "walker-waypoints-before": Table(("ppo_walker_waypoints_h100",), walker_waypoints),
+    "walker-variants": Table(("ppo_walker_variants_h200",), walker_variants),
+    "joystick-variants": Table(("ppo_joystick_variants_h200",), joystick_variants),
     "joystick-seeds-lr": Table(("ppo_joystick_seeds_lr6e4_h100",), joystick_seeds),
     "joystick-seeds-critic": Table(("ppo_joystick_seeds_h100",), joystick_seeds),
     "joystick-seeds": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
