@@ -169,3 +169,39 @@ def test_joystick_command_script_of_another_size_is_refused(tmp_path):
     done = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=120)
     assert done.returncode == 2
     assert "the command at 0 s has 2 values, HexapodJoystick-v0 takes 3" in done.stderr
+
+
+def test_loop_sends_the_envs_filtered_servo_targets():
+    """With ``action_filter``, the loop sends the low-passed command (the policy's actions
+    filtered with the command sent before) whose servo targets are the env's for the same
+    actions, step by step; the observation still holds the policy's own actions."""
+    env = jaxenvs.make("HexapodJoystick-v0", physics="c", action_filter=0.5, command_interval=50)
+    host = HostTask(env)
+    model = env.sim.physics_mj_model
+    truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
+    host.warm(spec_of(env, "HexapodJoystick-v0").sizes(), truth)
+    actions = np.asarray(jax.random.uniform(jax.random.key(2), (6, 18), minval=-0.4, maxval=0.4))
+    link, policy, commands = _Link(), _Policy(actions.astype(np.float32)), _Commands()
+    st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
+    opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
+    state = jax.jit(env.reset)(jax.random.key(0))
+    step, sense, observable = jax.jit(env.step), jax.jit(env.robot.sense), env.robot.observable()
+    t0 = time.monotonic()
+    for k in range(6):
+        readings = {n: np.asarray(v) for n, v in sense(state.data).items()}
+        readings = {n: v for n, v in readings.items() if n in observable}
+        link.frame = SensorFrame(k, 0.0, readings, time.monotonic())
+        commands.value = np.asarray(state.extras.command)
+        loop._one_step(link, policy, st, rec, k, t0, time.monotonic(), opts, None)
+        np.testing.assert_allclose(policy.seen[k], state.obs, atol=1e-6)
+        state = step(state, actions[k])
+        targets = np.asarray(env.robot.command(link.sent[k].astype(np.float32)))
+        np.testing.assert_allclose(targets, state.data.ctrl, atol=1e-6)
+    # filtered: the second command is neither the second action nor the first command
+    assert not np.allclose(link.sent[1], actions[1], atol=1e-3)
+    np.testing.assert_allclose(link.sent[0], 0.5 * actions[0], atol=1e-6)
+
+
+def test_action_filter_outside_its_range_is_refused():
+    with pytest.raises(ValueError, match="action_filter"):
+        jaxenvs.make("HexapodJoystick-v0", physics="c", action_filter=1.0)

@@ -344,6 +344,7 @@ TABLES = {
     "joystick-variants": Table(("ppo_joystick_variants_h200",), joystick_variants),
     "joystick-seeds-lr": Table(("ppo_joystick_seeds_lr6e4_h100",), joystick_seeds),
     "joystick-seeds-critic": Table(("ppo_joystick_seeds_h100",), joystick_seeds),
-    "joystick-seeds": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
+    "joystick-seeds-filter": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
+    "joystick-seeds": Table(("ppo_joystick_seeds_nocritic_h200",), joystick_seeds),
     "joystick-seeds-gap": Table(("ppo_joystick_seeds_gap_h100",), joystick_seeds),
 }

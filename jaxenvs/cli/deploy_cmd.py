@@ -149,10 +149,10 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
     from jaxenvs.robots.interface import HostTask, LinkError, spec_of
 
     env = jaxenvs.make(args.env, physics="c")
-    # the trained env's fields that shape the observation (a task's observation_fields,
-    # e.g. HexapodJoystick-v0's action_delay_max) from the policy's metadata
+    # the trained env's fields the loop depends on (a task's deploy_fields, e.g.
+    # HexapodJoystick-v0's action_delay_max and action_filter) from the policy's metadata
     trained = json.loads(policy.metadata.get("env_config", "{}"))
-    shaping = {k: trained[k] for k in getattr(env, "observation_fields", ()) if k in trained}
+    shaping = {k: trained[k] for k in getattr(env, "deploy_fields", ()) if k in trained}
     if shaping:
         env = jaxenvs.make(args.env, physics="c", **shaping)
     if str(env.observation_size) != policy.metadata["observation_size"]:

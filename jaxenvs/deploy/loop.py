@@ -236,6 +236,8 @@ class _Step:
         self.action: np.ndarray | None = None
         #: the last actions sent, the most recent first (zeros before the first)
         self.sent: np.ndarray = host.zero_history
+        #: the last command sent (per actuator; zeros before the first)
+        self.command: np.ndarray = host.zero_command
         self.task: Any = host.default_task_state
         self.pending: dict[int, float] = {}
 
@@ -290,8 +292,9 @@ def _one_step(
     action, finite = policy.act(obs)
     if not finite:
         raise DeployError("the policy's output is not finite")
-    command = st.host.actuator_action(action)
+    command = st.host.actuator_command(action, st.command)
     link.send(k, command)
+    st.command = command
     sent = time.monotonic()
     in_force, st.action, st.pending[k] = st.action, action, sent
     st.sent = st.host.pushed(st.sent, action)

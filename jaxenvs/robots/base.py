@@ -406,6 +406,15 @@ class RobotTask:
         command map takes); the action itself unless the task says otherwise."""
         return jnp.asarray(action, jnp.float32)
 
+    def actuator_command(self, action: jax.Array, previous: jax.Array) -> jax.Array:
+        """The action in [-1, 1] per actuator to send for the policy's ``action``, where
+        ``previous`` is the one sent the control step before (zeros before the first):
+        :meth:`actuator_action` unless the task filters its commands
+        (``HexapodJoystick-v0``'s ``action_filter``). A deploy loop sends this; the env
+        applies the same."""
+        del previous
+        return self.actuator_action(action)
+
     def _observe(self, key: jax.Array, data: Any, extras: Any, params: Any) -> jax.Array:
         del key, params
         return self.observation(self.robot.sense(data), self.task_state(data, extras))

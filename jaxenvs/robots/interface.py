@@ -242,7 +242,9 @@ class HostTask:
     * :meth:`observe`: ``env.observation(readings, task_state)``: the noiseless
       observation of the sensors' readings and the task's own state;
     * :meth:`actuator_action`: ``env.actuator_action(action)``: the policy's action as an
-      action in [-1, 1] per actuator;
+      action in [-1, 1] per actuator; :meth:`actuator_command`:
+      ``env.actuator_command(action, previous)``: the one to send, given the one sent
+      before (a task that filters its commands);
     * :meth:`task_state`, :meth:`reward`, :meth:`terminated`: of the simulator's ground
       truth (``qpos``, ``qvel``, ``mocap_pos``), for a simulated robot that publishes it;
     * a task's optional hooks: ``task_input_shape``, ``with_task_input(task, value)``
@@ -261,6 +263,7 @@ class HostTask:
         self._params = env.default_params
         self._obs = jax.jit(env.observation)
         self._act = jax.jit(env.actuator_action)
+        self._command = jax.jit(env.actuator_command)
         self._truth_fns = jax.jit(self._of_truth)
         self._input = jax.jit(getattr(env, "with_task_input", lambda task, value: value))
         self._history = jax.jit(getattr(env, "with_action_history", lambda task, actions: task))
@@ -295,7 +298,7 @@ class HostTask:
         (``--command``): the task's ``task_input_shape``, else that of its own state (``()``
         when it has none or several parts)."""
         readings = {name: np.zeros(size) for name, size in sizes.items()}
-        self.actuator_action(self.zero_action)
+        self.actuator_command(self.zero_action, self.zero_command)
         task, _, _ = self.of_truth(truth, truth, self.zero_action)
         self._task0 = task
         self.observe(readings, task)
@@ -365,6 +368,17 @@ class HostTask:
     def actuator_action(self, action: np.ndarray) -> np.ndarray:
         """The policy's action as one action in [-1, 1] per actuator (float64)."""
         return np.asarray(self._act(action), np.float64)
+
+    @property
+    def zero_command(self) -> np.ndarray:
+        """The command sent before the first (each actuator's action 0), float64."""
+        return np.zeros_like(self.actuator_action(self.zero_action))
+
+    def actuator_command(self, action: np.ndarray, previous: np.ndarray) -> np.ndarray:
+        """The command to send for the policy's action when ``previous`` was sent the
+        step before (float64): the policy's action per actuator, filtered where the task
+        filters its commands."""
+        return np.asarray(self._command(action, np.asarray(previous, np.float32)), np.float64)
 
     @property
     def default_task_state(self) -> Any:

@@ -93,6 +93,9 @@ class JoystickConfig(HexapodRandomization):
       joint_bias: each env's joint angle readings are offset by constants drawn at reset
         uniformly in +- this (rad; 0: none), in the observation only (as ``obs_noise``).
       gyro_bias: ... and its gyro readings by constants uniform in +- this (rad/s).
+      action_filter: a first-order low-pass on the servo targets: each step's targets are
+        ``(1 - action_filter) * targets(applied action) + action_filter * targets of the
+        step before`` (0: none; the targets start at the stance, 0).
     """
 
     episode_length: int = 1000
@@ -124,6 +127,7 @@ class JoystickConfig(HexapodRandomization):
     action_delay_max: int = 0
     joint_bias: float = 0.0
     gyro_bias: float = 0.0
+    action_filter: float = 0.0
 
     def validate(self) -> None:
         super().validate()
@@ -158,6 +162,7 @@ class JoystickConfig(HexapodRandomization):
             require(getattr(self, name) >= 0, name, "must be >= 0")
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
+        require(0 <= self.action_filter < 1, "action_filter", "must be in [0, 1)")
 
 
 class JoystickParams(struct.PyTreeNode):
@@ -234,7 +239,9 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     * Action: Box(18) in [-1, 1]: joint position targets, linear over each joint's range.
       The env applies the action of ``d`` steps ago (``d`` the env's delay, uniform in
       0..``action_delay_max`` at reset; before the first ``d`` steps, zero actions);
-      with ``action_noise`` > 0, Gaussian noise of that std is added to it, then clipped.
+      with ``action_noise`` > 0, Gaussian noise of that std is added to it, then clipped;
+      with ``action_filter`` > 0, the servo targets are low-passed
+      (:meth:`actuator_command`: what a deploy loop sends).
     * Command: (vx, vy, yaw rate) uniform in ``vx_range`` x ``vy_range`` x ``yaw_range``,
       all zero with probability ``zero_probability``; drawn at reset and redrawn every
       ``command_interval`` steps (5 s), from the reset's and the act hook's keys.
@@ -278,9 +285,10 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     vmap_atol = 1e-2
     observation_size = 63  # the size without delay; an instance has its config's
     action_size = 18
-    #: the config fields the observation's layout depends on (an exported policy's
-    #: metadata carries them: ``jaxenvs deploy`` builds the task with them)
-    observation_fields = ("action_delay_max",)
+    #: the config fields a deploy loop depends on: the observation's layout and the
+    #: commands' filter (an exported policy's metadata carries them: ``jaxenvs deploy``
+    #: builds the task with them)
+    deploy_fields = ("action_delay_max", "action_filter")
 
     def __init__(self, config: JoystickConfig | None = None) -> None:
         config = config or JoystickConfig()
@@ -350,7 +358,12 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             kick = c.push_speed * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
             kick = jnp.where(u[4] < c.push_probability, kick, jnp.zeros(2))
             data = data.replace(qvel=data.qvel.at[:2].add(kick))
-        data = self.sim.step(self.sim.model_with(params.model), data, self.robot.command(applied))
+        targets = self.robot.command(applied)
+        if c.action_filter > 0:  # data.ctrl: the targets of the step before
+            # (the servo targets are linear in the action, so this is actuator_command's
+            # filter mapped through the robot's command map)
+            targets = (1.0 - c.action_filter) * targets + c.action_filter * data.ctrl
+        data = self.sim.step(self.sim.model_with(params.model), data, targets)
         since = extras.since + 1
         redraw = since >= c.command_interval
         extras = extras.replace(
@@ -360,6 +373,16 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             prev_action=extras.actions[0],
         )
         return data, extras
+
+    def actuator_command(self, action: jax.Array, previous: jax.Array) -> jax.Array:
+        """The action to send: ``(1 - action_filter) * action + action_filter *
+        previous`` (the policy's ``action`` itself without a filter); the env's servo
+        targets are this action through the robot's command map."""
+        beta = self.config.action_filter
+        action = self.actuator_action(action)
+        if beta == 0:
+            return action
+        return (1.0 - beta) * action + beta * jnp.asarray(previous, jnp.float32)
 
     def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, jax.Array]:
         """The task's own input to :meth:`observation`: (command (3), the last
