@@ -47,7 +47,8 @@ SCRIPT = (
 )
 #: the errors may be this many times the simulation's
 TOLERANCE = 1.5
-#: the result file and seed whose simulation figures are the reference
+#: the result file, seed and bench whose simulation figures are the reference (default;
+#: ``--reference NAME:SEED:BENCH`` names another, the run's own)
 REFERENCE = ("ppo_joystick_seeds_gap_h100", 0, "mjx")
 NUMBERS = (
     "steps",
@@ -61,9 +62,9 @@ NUMBERS = (
 )
 
 
-def reference() -> dict[str, float]:
-    """The policy's tracking errors in simulation (:data:`REFERENCE`)."""
-    name, seed, bench = REFERENCE
+def reference(ref: tuple[str, int, str] = REFERENCE) -> dict[str, float]:
+    """The policy's tracking errors in simulation (``ref``: result file, seed, bench)."""
+    name, seed, bench = ref
     rec = json.loads((results_io.RESULTS_DIR / f"{name}.json").read_text())
     row = next(r for r in rec["rows"] if r["seed"] == seed)[bench]
     return {"lin": row["tracking_error_lin"], "yaw": row["tracking_error_yaw"]}
@@ -109,7 +110,7 @@ def deploy(
     )
     print(out.strip().splitlines()[-1], flush=True)
     s = json.loads(summary.read_text())
-    ref = reference()
+    ref = reference(args.reference)
     row: dict[str, Any] = {"env_id": ENV_ID, **link, "seconds": s["seconds"]}
     row.update({k: s[k] for k in NUMBERS if k in s})
     row["lin_rms"] = s["tracking_error_rms"]["lin"]  # over the steps before any error
@@ -162,6 +163,14 @@ def _link(text: str) -> dict[str, float]:
     return {"latency_ms": latency, "jitter_ms": jitter, "noise": noise}
 
 
+def _reference(text: str) -> tuple[str, int, str]:
+    try:
+        name, seed, bench = text.split(":")
+        return name, int(seed), bench
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NAME:SEED:BENCH, not {text!r}") from None
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--run", required=True, help="a trained HexapodJoystick-v0 run directory")
@@ -177,6 +186,14 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--gif", metavar="OUT.gif", help="draw the first run (MUJOCO_GL=egl)")
     p.add_argument("--every", type=int, default=8, help="the GIF's control steps per frame")
+    p.add_argument(
+        "--reference",
+        type=_reference,
+        default=REFERENCE,
+        metavar="NAME:SEED:BENCH",
+        help="the result file, seed and bench (mjx, mujoco_c, ...) of the run's simulation "
+        "figures (default: %(default)s)",
+    )
     p.add_argument("--json", help=results_io.HELP)
     args = p.parse_args()
     links = args.link or [_link("30,10,1"), _link("0,0,0")]
@@ -200,7 +217,7 @@ def main() -> None:
     for m in medians:
         print(json.dumps(m))
     if args.json:
-        ref = reference()
+        ref = reference(args.reference)
         rec = results_io.record(
             args.json,
             f"{ENV_ID}: jaxenvs deploy through the simulated robot, a 60 s command script, 2 cores",
@@ -208,11 +225,12 @@ def main() -> None:
             description="the shared 2-core development machine (other users' jobs running)",
             engine="c",
             notes=(
-                "seed 0's policy exported to ONNX, run by jaxenvs deploy --robot sim --command "
+                "the run's policy exported to ONNX, run by jaxenvs deploy --robot sim --command "
                 f"(script: {list(SCRIPT)}, start s, vx, vy, yaw rate); tracking errors from "
                 "the simulated robot's ground truth against the command in force. Pass: no "
                 f"fall, both errors <= {TOLERANCE} x the simulation's (lin {ref['lin']}, yaw "
-                f"{ref['yaw']}: {REFERENCE[0]} seed 0). The last rows are the medians of "
+                f"{ref['yaw']}: {args.reference[0]} seed {args.reference[1]}, "
+                f"{args.reference[2]}). The last rows are the medians of "
                 "each link setting; the first link ran --repeats times, the others once; "
                 "the ideal link (no delay, no noise) is the reference of the same script."
             ),
