@@ -22,7 +22,7 @@ import pytest
 
 import jaxenvs
 from jaxenvs.deploy import loop
-from jaxenvs.deploy.export import env_config_changes, npz_bytes
+from jaxenvs.deploy.export import deploy_config, env_config_changes, npz_bytes
 from jaxenvs.deploy.log import read_log
 from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, NumpyPolicy
 from jaxenvs.robots.interface import HostTask, SensorFrame, spec_of
@@ -171,11 +171,20 @@ def test_joystick_command_script_of_another_size_is_refused(tmp_path):
     assert "the command at 0 s has 2 values, HexapodJoystick-v0 takes 3" in done.stderr
 
 
-def test_loop_sends_the_envs_filtered_servo_targets():
+@pytest.mark.parametrize("delay", [0, 2])
+def test_loop_sends_the_envs_filtered_servo_targets(delay):
     """With ``action_filter``, the loop sends the low-passed command (the policy's actions
     filtered with the command sent before) whose servo targets are the env's for the same
-    actions, step by step; the observation still holds the policy's own actions."""
-    env = jaxenvs.make("HexapodJoystick-v0", physics="c", action_filter=0.5, command_interval=50)
+    actions, step by step (with an env action delay of ``delay`` steps: the command sent
+    ``delay`` steps before, zero targets before the first); the observation still holds
+    the policy's own actions."""
+    env = jaxenvs.make(
+        "HexapodJoystick-v0",
+        physics="c",
+        action_filter=0.5,
+        command_interval=50,
+        action_delay_max=delay,
+    )
     host = HostTask(env)
     model = env.sim.physics_mj_model
     truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
@@ -184,7 +193,10 @@ def test_loop_sends_the_envs_filtered_servo_targets():
     link, policy, commands = _Link(), _Policy(actions.astype(np.float32)), _Commands()
     st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
     opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
-    state = jax.jit(env.reset)(jax.random.key(0))
+    keys = jax.random.split(jax.random.key(0), 32)
+    delays = np.asarray(jax.jit(jax.vmap(env.reset))(keys).extras.delay)
+    state = jax.jit(env.reset)(keys[int(np.argmax(delays == delay))])
+    assert int(state.extras.delay) == delay
     step, sense, observable = jax.jit(env.step), jax.jit(env.robot.sense), env.robot.observable()
     t0 = time.monotonic()
     for k in range(6):
@@ -195,11 +207,26 @@ def test_loop_sends_the_envs_filtered_servo_targets():
         loop._one_step(link, policy, st, rec, k, t0, time.monotonic(), opts, None)
         np.testing.assert_allclose(policy.seen[k], state.obs, atol=1e-6)
         state = step(state, actions[k])
-        targets = np.asarray(env.robot.command(link.sent[k].astype(np.float32)))
-        np.testing.assert_allclose(targets, state.data.ctrl, atol=1e-6)
+        sent = link.sent[k - delay] if k >= delay else np.zeros(18)
+        targets = np.asarray(env.robot.command(np.asarray(sent, np.float32)))
+        np.testing.assert_allclose(targets, state.data.ctrl, atol=1e-5)
     # filtered: the second command is neither the second action nor the first command
     assert not np.allclose(link.sent[1], actions[1], atol=1e-3)
     np.testing.assert_allclose(link.sent[0], 0.5 * actions[0], atol=1e-6)
+
+
+def test_loop_refuses_a_task_built_without_the_policys_filter():
+    """A policy trained with ``action_filter=0.5`` (its metadata's env config) driven
+    through a task built without it: ``loop.run`` raises naming the field, before the
+    robot is driven; the exported metadata carries every deploy field."""
+    env = jaxenvs.make("HexapodJoystick-v0", physics="c")
+    meta = {"env_config": json.dumps({"action_filter": 0.5})}
+    with pytest.raises(ValueError, match="action_filter=0.5"):
+        loop.check_deploy_fields(env, meta)
+    filtered = jaxenvs.make("HexapodJoystick-v0", physics="c", action_filter=0.5)
+    loop.check_deploy_fields(filtered, meta)
+    loop.check_deploy_fields(env, {"env_config": "{}"})  # the defaults: no filter, no delay
+    assert deploy_config(JoystickConfig(), env) == {"action_delay_max": 0, "action_filter": 0.0}
 
 
 def test_action_filter_outside_its_range_is_refused():

@@ -263,9 +263,8 @@ def walker_variants(recs: list[Rec]) -> Cells:
 
     def label(r: Row) -> str:
         diff = r["config_diff"]
-        chunks = diff.get("agent.total_steps", r["env_steps"]) // 1048576
-        targets = diff.get("env.target_distance", "shipped")
-        return f"{r['seed']}: {chunks} chunks, targets {targets} m"
+        parts = [f"{k.split('.')[-1]} {v}" for k, v in sorted(diff.items())]
+        return f"{r['seed']}: " + (", ".join(parts) or "the shipped config")
 
     def cells(r: Row) -> list[str]:
         return [

@@ -100,8 +100,19 @@ def run_metadata(resolved: Any, env: Any, seed: int, normalize: bool) -> dict[st
         "control_dt": repr(float(env.control_dt)),
         "activation": ACTIVATION,
         "normalize_obs": "1" if normalize else "0",
-        "env_config": json.dumps(env_config_changes(resolved.env), sort_keys=True),
+        "env_config": json.dumps(deploy_config(resolved.env, env), sort_keys=True),
     }
+
+
+def deploy_config(config: Any, env: Any) -> dict[str, Any]:
+    """What ``jaxenvs deploy`` reads of the trained env: :func:`env_config_changes`, and
+    every one of the task's ``deploy_fields`` whatever its value (so a later change of a
+    default cannot change what an exported policy is deployed with)."""
+    out = env_config_changes(config)
+    for name in getattr(env, "deploy_fields", ()):
+        value = getattr(config, name)
+        out[name] = list(value) if isinstance(value, tuple) else value
+    return out
 
 
 def env_config_changes(config: Any) -> dict[str, Any]:

@@ -234,7 +234,8 @@ class _Step:
         self.frame_seq = -1
         self.truth: tuple[int, dict[str, np.ndarray]] | None = None
         self.action: np.ndarray | None = None
-        #: the last actions sent, the most recent first (zeros before the first)
+        #: the policy's last actions (unfiltered: what the observation holds), the most
+        #: recent first (zeros before the first)
         self.sent: np.ndarray = host.zero_history
         #: the last command sent (per actuator; zeros before the first)
         self.command: np.ndarray = host.zero_command
@@ -366,6 +367,24 @@ def _first_frame(link: Any, st: _Step, rec: Record, opts: LoopOptions, log: Any)
         time.sleep(1e-3)
 
 
+def check_deploy_fields(env: Any, metadata: dict[str, str]) -> None:
+    """Raise ``ValueError`` naming the first of the task's ``deploy_fields`` (the config
+    fields the loop depends on: an observation's layout, a command filter) whose value in
+    the policy's metadata (``env_config``; a field it does not hold has the config class's
+    default) differs from ``env``'s."""
+    import json
+
+    trained = json.loads(metadata.get("env_config", "{}"))
+    default = type(env.config)()
+    for name in getattr(env, "deploy_fields", ()):
+        want, have = trained.get(name, getattr(default, name)), getattr(env.config, name)
+        if want != have:
+            raise ValueError(
+                f"the policy was trained with {name}={want!r}, the deploy task has "
+                f"{name}={have!r}: build it with jaxenvs.make(..., {name}={want!r})"
+            )
+
+
 def run(
     link: Any,
     host: Any,
@@ -376,7 +395,12 @@ def run(
 ) -> Record:
     """Drive ``link`` (connected) for ``opts.seconds``; a :class:`Record` of the run.
     Always holds the robot at the end; on a failure ``record.error`` names it (and the
-    robot was told to hold)."""
+    robot was told to hold). A policy whose metadata disagrees with the host's task on a
+    deploy field raises ``ValueError`` before the robot is driven
+    (:func:`check_deploy_fields`)."""
+    metadata = getattr(policy, "metadata", None)
+    if metadata is not None:
+        check_deploy_fields(host.env, metadata)
     dt = float(host.env.control_dt)
     rec = Record(dt=dt)
     st = _Step(host, commands)

@@ -329,9 +329,10 @@ class HostTask:
         return self._input(task, value)
 
     def with_action_history(self, task: Any, actions: np.ndarray) -> Any:
-        """The task state holding ``actions``, the last ``action_history`` actions the loop
-        sent (the most recent first), for a task whose observation holds them (its
-        ``with_action_history``); ``task`` itself otherwise."""
+        """The task state holding ``actions``, the policy's last ``action_history`` actions
+        (the most recent first; as the policy gave them, before a task's command filter),
+        for a task whose observation holds them (its ``with_action_history``); ``task``
+        itself otherwise."""
         return self._history(task, actions)
 
     @staticmethod

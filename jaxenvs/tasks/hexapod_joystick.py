@@ -360,8 +360,8 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             data = data.replace(qvel=data.qvel.at[:2].add(kick))
         targets = self.robot.command(applied)
         if c.action_filter > 0:  # data.ctrl: the targets of the step before
-            # (the servo targets are linear in the action, so this is actuator_command's
-            # filter mapped through the robot's command map)
+            # (the command map is linear in the action and the weights sum to 1: this is
+            # actuator_command's filter mapped through the command map)
             targets = (1.0 - c.action_filter) * targets + c.action_filter * data.ctrl
         data = self.sim.step(self.sim.model_with(params.model), data, targets)
         since = extras.since + 1
@@ -376,8 +376,10 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
 
     def actuator_command(self, action: jax.Array, previous: jax.Array) -> jax.Array:
         """The action to send: ``(1 - action_filter) * action + action_filter *
-        previous`` (the policy's ``action`` itself without a filter); the env's servo
-        targets are this action through the robot's command map."""
+        previous`` (the policy's ``action`` itself without a filter). The filter is linear
+        with weights summing to 1, and the command map is linear, so the env's servo
+        targets (filtered in :meth:`_act` from ``data.ctrl``) are the command map of this
+        sequence of sent actions, shifted by the env's action delay."""
         beta = self.config.action_filter
         action = self.actuator_action(action)
         if beta == 0:
@@ -435,7 +437,8 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         self, task: tuple[jax.Array, jax.Array], actions: jax.Array
     ) -> tuple[jax.Array, jax.Array]:
         """The task state ``(command, actions)`` with ``actions`` (``(action_history,
-        18)``, the most recent first: the last actions a deploy loop sent)."""
+        18)``, the most recent first: the policy's last actions in a deploy loop, before
+        :meth:`actuator_command`'s filter)."""
         return task[0], jnp.asarray(actions, jnp.float32)
 
     def tracking_errors(
