@@ -289,22 +289,24 @@ def walker_variants(recs: list[Rec]) -> Cells:
 
 
 def walker_eval_wide(recs: list[Rec]) -> Cells:
-    """One policy's waypoint eval with more envs: per group, speed (far), falls within
-    10 s (far) and over the 50 s episode (both), 3 m targets per minute."""
+    """Policies' waypoint evals with more envs, per policy and group: speed (far), falls
+    within 10 s (far) and over the 50 s episode (both), 3 m targets per minute."""
     (rec,) = recs
-    (r,) = rec["rows"]
+    groups = ("default_far", "default_near", "randomized_far", "randomized_near")
 
-    def cells(g: str) -> list[str]:
+    def cells(rg: tuple[Row, str]) -> list[str]:
+        r, g = rg
         x = r[g]
         speed = f"{x['speed_m_per_s']:.3f}" if "speed_m_per_s" in x else "-"
         within = pct(x["fell_fraction"]) if "fell_fraction" in x else "-"
         per_min = f"{x['targets_per_minute']:.1f}" if "targets_per_minute" in x else "-"
         falls = pct(x["fell_fraction_episode"])
-        return [g, str(r["envs_per_group"]), speed, within, falls, per_min]
+        who = f"{r['seed']}, {r['physics']} ({r['device']})"
+        return [who, g, str(r["envs_per_group"]), speed, within, falls, per_min]
 
-    head = ["group", "envs", "speed m/s", "fell in 10 s", "fell over 50 s", "targets per min"]
-    groups = ("default_far", "default_near", "randomized_far", "randomized_near")
-    return each_row(head, list(groups), cells)
+    head = ["seed, engine", "group", "envs", "speed m/s", "fell in 10 s", "fell over 50 s"]
+    head.append("targets per min")
+    return each_row(head, [(r, g) for r in rec["rows"] for g in groups], cells)
 
 
 def _joystick_figures(g: Row) -> str:
@@ -359,7 +361,7 @@ TABLES = {
     "walker-waypoints": Table(("ppo_walker_waypoints_h200",), walker_waypoints),
     "walker-waypoints-before": Table(("ppo_walker_waypoints_h100",), walker_waypoints),
     "walker-variants": Table(("ppo_walker_variants_h200",), walker_variants),
-    "walker-eval-wide": Table(("walker_waypoints_c_1024",), walker_eval_wide),
+    "walker-eval-wide": Table(("walker_waypoints_wide",), walker_eval_wide),
     "joystick-variants": Table(("ppo_joystick_variants_h200",), joystick_variants),
     "joystick-seeds-lr": Table(("ppo_joystick_seeds_lr6e4_h100",), joystick_seeds),
     "joystick-seeds-critic": Table(("ppo_joystick_seeds_h100",), joystick_seeds),
