@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -128,27 +129,27 @@ class _Commands:
         return self.value
 
 
-def test_loop_observation_is_the_envs_with_delayed_actions():
-    """Step by step, the deploy loop's observation of the env's readings (its own task
-    state: the command in force and the actions it sent) is the env's observation, for a
-    task with ``action_delay_max=2`` whose env draws a delay of 2."""
-    env = jaxenvs.make("HexapodJoystick-v0", physics="c", action_delay_max=2, command_interval=4)
+def _loop_beside_env(env: Any, actions: np.ndarray, delay: int) -> tuple[_Link, list]:
+    """The deploy loop's steps on the readings of ``env`` (a ``HexapodJoystick-v0``), from
+    a reset whose drawn action delay is ``delay``, the env stepped with the same
+    ``actions``: asserts each step's loop observation is the env's; returns the link (what
+    the loop sent) and the env's ``data.ctrl`` after each step."""
     host = HostTask(env)
     model = env.sim.physics_mj_model
     truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
     host.warm(spec_of(env, "HexapodJoystick-v0").sizes(), truth)
-    actions = np.asarray(jax.random.uniform(jax.random.key(1), (8, 18), minval=-0.4, maxval=0.4))
     link, policy, commands = _Link(), _Policy(actions.astype(np.float32)), _Commands()
     st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
     opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
     keys = jax.random.split(jax.random.key(0), 32)
     # jitted: an eager call compiles each of its operations on its own (seconds here)
-    delays = jax.jit(jax.vmap(env.reset))(keys).extras.delay
-    state = jax.jit(env.reset)(keys[int(np.argmax(np.asarray(delays)))])
-    assert int(state.extras.delay) == 2
-    step, sense, observable = jax.jit(env.step), jax.jit(env.robot.sense), env.robot.observable()
-    t0 = time.monotonic()
-    for k in range(8):
+    delays = np.asarray(jax.jit(jax.vmap(env.reset))(keys).extras.delay)
+    state = jax.jit(env.reset)(keys[int(np.argmax(delays == delay))])
+    assert int(state.extras.delay) == delay
+    step, sense = jax.jit(env.step), jax.jit(env.robot.sense)
+    observable = env.robot.observable()
+    t0, ctrls = time.monotonic(), []
+    for k in range(len(actions)):
         readings = {n: np.asarray(v) for n, v in sense(state.data).items()}
         readings = {n: v for n, v in readings.items() if n in observable}
         link.frame = SensorFrame(k, 0.0, readings, time.monotonic())
@@ -156,6 +157,17 @@ def test_loop_observation_is_the_envs_with_delayed_actions():
         loop._one_step(link, policy, st, rec, k, t0, time.monotonic(), opts, None)
         np.testing.assert_allclose(policy.seen[k], state.obs, atol=1e-6)
         state = step(state, actions[k])
+        ctrls.append(np.asarray(state.data.ctrl))
+    return link, ctrls
+
+
+def test_loop_observation_is_the_envs_with_delayed_actions():
+    """Step by step, the deploy loop's observation of the env's readings (its own task
+    state: the command in force and the actions it sent) is the env's observation, for a
+    task with ``action_delay_max=2`` whose env draws a delay of 2."""
+    env = jaxenvs.make("HexapodJoystick-v0", physics="c", action_delay_max=2, command_interval=4)
+    actions = np.asarray(jax.random.uniform(jax.random.key(1), (8, 18), minval=-0.4, maxval=0.4))
+    link, _ = _loop_beside_env(env, actions, delay=2)
     assert len(link.sent) == 8
 
 
@@ -185,31 +197,12 @@ def test_loop_sends_the_envs_filtered_servo_targets(delay):
         command_interval=50,
         action_delay_max=delay,
     )
-    host = HostTask(env)
-    model = env.sim.physics_mj_model
-    truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
-    host.warm(spec_of(env, "HexapodJoystick-v0").sizes(), truth)
     actions = np.asarray(jax.random.uniform(jax.random.key(2), (6, 18), minval=-0.4, maxval=0.4))
-    link, policy, commands = _Link(), _Policy(actions.astype(np.float32)), _Commands()
-    st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
-    opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
-    keys = jax.random.split(jax.random.key(0), 32)
-    delays = np.asarray(jax.jit(jax.vmap(env.reset))(keys).extras.delay)
-    state = jax.jit(env.reset)(keys[int(np.argmax(delays == delay))])
-    assert int(state.extras.delay) == delay
-    step, sense, observable = jax.jit(env.step), jax.jit(env.robot.sense), env.robot.observable()
-    t0 = time.monotonic()
-    for k in range(6):
-        readings = {n: np.asarray(v) for n, v in sense(state.data).items()}
-        readings = {n: v for n, v in readings.items() if n in observable}
-        link.frame = SensorFrame(k, 0.0, readings, time.monotonic())
-        commands.value = np.asarray(state.extras.command)
-        loop._one_step(link, policy, st, rec, k, t0, time.monotonic(), opts, None)
-        np.testing.assert_allclose(policy.seen[k], state.obs, atol=1e-6)
-        state = step(state, actions[k])
+    link, ctrls = _loop_beside_env(env, actions, delay)
+    for k, ctrl in enumerate(ctrls):
         sent = link.sent[k - delay] if k >= delay else np.zeros(18)
         targets = np.asarray(env.robot.command(np.asarray(sent, np.float32)))
-        np.testing.assert_allclose(targets, state.data.ctrl, atol=1e-5)
+        np.testing.assert_allclose(targets, ctrl, atol=1e-5)
     # filtered: the second command is neither the second action nor the first command
     assert not np.allclose(link.sent[1], actions[1], atol=1e-3)
     np.testing.assert_allclose(link.sent[0], 0.5 * actions[0], atol=1e-6)

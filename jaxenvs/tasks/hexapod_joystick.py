@@ -214,6 +214,12 @@ def heading_velocity(
     return jnp.stack([c * d[0] + s * d[1], -s * d[0] + c * d[1], turn / dt])
 
 
+def low_pass(x: jax.Array, previous: jax.Array, beta: float) -> jax.Array:
+    """One step of the first-order filter ``action_filter`` names: ``(1 - beta) * x + beta
+    * previous`` (the env's servo targets and a deploy loop's commands alike)."""
+    return (1.0 - beta) * x + beta * previous
+
+
 def sample_command(u: jax.Array, config: JoystickConfig) -> jax.Array:
     """A command from four uniforms in [0, 1): three place it in the config's ranges, the
     fourth makes it zero with probability ``zero_probability``."""
@@ -362,7 +368,7 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         if c.action_filter > 0:  # data.ctrl: the targets of the step before
             # (the command map is linear in the action and the weights sum to 1: this is
             # actuator_command's filter mapped through the command map)
-            targets = (1.0 - c.action_filter) * targets + c.action_filter * data.ctrl
+            targets = low_pass(targets, data.ctrl, c.action_filter)
         data = self.sim.step(self.sim.model_with(params.model), data, targets)
         since = extras.since + 1
         redraw = since >= c.command_interval
@@ -384,7 +390,7 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         action = self.actuator_action(action)
         if beta == 0:
             return action
-        return (1.0 - beta) * action + beta * jnp.asarray(previous, jnp.float32)
+        return low_pass(action, jnp.asarray(previous, jnp.float32), beta)
 
     def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, jax.Array]:
         """The task's own input to :meth:`observation`: (command (3), the last
