@@ -97,6 +97,49 @@ def test_batched_shapes_and_fresh_autoreset(get_checker):
     assert np.all(flen[done] >= 1)
 
 
+@pytest.mark.parametrize("randomize", [False, True])
+def test_compact_auto_reset_equals_resetting_the_whole_batch(monkeypatch, randomize):
+    """From 64 envs a device a step computes fresh starts only for its finished envs
+    (compacted into an eighth of the batch), and the whole batch only when more finished:
+    the states are those of resetting the whole batch, bit for bit, through both cases."""
+    from jaxenvs.actions import random_actions
+    from jaxenvs.core import batch
+
+    n, steps = 128, 150
+    assert batch.reset_slots(n) == 16 and batch.reset_slots(63) == 0
+
+    def run(slots):
+        monkeypatch.setattr(batch, "reset_slots", slots)
+        benv = jaxenvs.make("CartPole-v0", num_envs=n, physics="c", randomize=randomize)
+
+        def body(s, xs):
+            k, i = xs
+            # pushing one way for the first steps topples every pole at about the same
+            # time (more finished envs than places), random play after that (fewer)
+            a = jnp.where(i < 20, 1, random_actions(benv.env, k, (n,)))
+            s = benv.step(s, a)
+            return s, s.done.sum()
+
+        def rollout(key):
+            xs = (jax.random.split(key, steps), jnp.arange(steps))
+            return jax.lax.scan(body, benv.reset(key), xs)
+
+        return jax.jit(rollout)(jax.random.key(4))
+
+    compact, counts = run(batch.reset_slots)
+    whole, _ = run(lambda per_device: 0)
+    counts = np.asarray(counts)
+    assert ((counts > 0) & (counts <= 16)).sum() > 20  # the compact path ran
+    assert (counts > 16).any()  # and the whole-batch one (the first wave of falls)
+    flat = [
+        jax.random.key_data(x) if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key) else x
+        for x in jax.tree.leaves((compact, whole))
+    ]
+    half = len(flat) // 2
+    for a, b in zip(flat[:half], flat[half:], strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 def test_scan_unroll_hints_are_set():
     benv = jaxenvs.make("CartPole-v0", num_envs=8, physics="mjx")
     assert benv.scan_unroll > 1  # the cartpole's measured choice (benchmarks/NOTES.md)

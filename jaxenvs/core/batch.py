@@ -3,6 +3,7 @@ vmapped function, with fresh random auto-resets."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -24,6 +25,13 @@ class BatchedEnv:
     reset (domain randomisation): its state is
     ``env.reset(k, params)``'s for its key ``k``, the params drawn from
     ``jax.random.split(k, 4)[3]`` (with JAX's default partitionable threefry).
+
+    **What a step resets.** A step computes fresh starts only when an env finished. From
+    :data:`COMPACT_RESET_FROM` envs a device, it computes them for the finished envs alone,
+    gathered into :func:`reset_slots` places a device (an eighth of its envs), and for the
+    whole batch only when more than that finished on some device; below that size, for the
+    whole batch. Each env's fresh start depends on its own key (and params) only, so the
+    states are the same bit for bit either way.
 
     **Devices.** The batch is spread over the local devices that
     :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
@@ -110,35 +118,80 @@ class BatchedEnv:
         else:
             nxt = jax.vmap(self.env.step, in_axes=(0, 0, None))(state, action, params)
         done = nxt.done
+        rows = self.devices
+        per_row = self.num_envs // rows
+        slots = reset_slots(per_row)
 
-        def reset_done(nxt: State) -> State:
+        def reset_all(nxt: State) -> State:
             fresh = self.fresh_starts(nxt.key, params)
+            return self._merge(nxt, done, lambda new, old: _where(done, new, old), fresh)
 
-            def pick(new: jax.Array, old: jax.Array) -> jax.Array:
-                mask = done.reshape(done.shape + (1,) * (old.ndim - 1))
-                return jnp.where(mask, new, old)
-
-            merged = jax.tree.map(
-                pick,
-                (fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
-                (nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
+        def reset_some(nxt: State) -> State:
+            # each device row's finished envs, compacted into `slots` places (the rest
+            # point past the row's end and are dropped when scattered back)
+            index = jax.vmap(lambda d: jnp.nonzero(d, size=slots, fill_value=per_row)[0])(
+                done.reshape(rows, per_row)
             )
-            obs, extras, time, key, new_params = merged
-            data = self.env.sim.select_data(pick, fresh.data, nxt.data)
-            info = dict(nxt.info)
-            info["episode_return"] = jnp.where(done, 0.0, nxt.info["episode_return"])
-            info["episode_length"] = jnp.where(done, 0, nxt.info["episode_length"])
-            return nxt.replace(
-                data=data,
-                obs=obs,
-                extras=extras,
-                time=time,
-                key=key,
-                params=new_params,
-                info=info,
-            )
+            keys = _rows(nxt.key, rows)
+            picked = jax.vmap(lambda k, i: k[jnp.minimum(i, per_row - 1)])(keys, index)
+            fresh = self.fresh_starts(picked.reshape(rows * slots), params)
 
-        return jax.lax.cond(jnp.any(done), reset_done, lambda s: s, nxt)
+            def put(new: jax.Array, old: jax.Array) -> jax.Array:
+                new = new.reshape(rows, slots, *new.shape[1:])
+                out = jax.vmap(lambda o, i, v: o.at[i].set(v, mode="drop"))(
+                    _rows(old, rows), index, new
+                )
+                return out.reshape(old.shape)
+
+            return self._merge(nxt, done, put, fresh)
+
+        if slots == 0:
+            return jax.lax.cond(jnp.any(done), reset_all, lambda s: s, nxt)
+        most = jnp.max(done.reshape(rows, per_row).sum(axis=1))
+        branch = jnp.where(most == 0, 0, jnp.where(most <= slots, 1, 2))
+        return jax.lax.switch(branch, [lambda s: s, reset_some, reset_all], nxt)
+
+    def _merge(
+        self,
+        nxt: State,
+        done: jax.Array,
+        put: Callable[[jax.Array, jax.Array], jax.Array],
+        fresh: State,
+    ) -> State:
+        """``nxt`` with its finished envs' starts taken from ``fresh`` by
+        ``put(fresh_leaf, old_leaf)``, and their episode counters zeroed."""
+        obs, extras, time, key, new_params = jax.tree.map(
+            put,
+            (fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
+            (nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
+        )
+        data = self.env.sim.select_data(put, fresh.data, nxt.data)
+        info = dict(nxt.info)
+        info["episode_return"] = jnp.where(done, 0.0, nxt.info["episode_return"])
+        info["episode_length"] = jnp.where(done, 0, nxt.info["episode_length"])
+        return nxt.replace(
+            data=data, obs=obs, extras=extras, time=time, key=key, params=new_params, info=info
+        )
 
     def __repr__(self) -> str:
         return f"BatchedEnv({self.env!r}, num_envs={self.num_envs}, devices={self.devices})"
+
+
+#: a device's share of the batch from which a step resets only its finished envs
+COMPACT_RESET_FROM = 64
+
+
+def reset_slots(per_device: int) -> int:
+    """Fresh starts a step computes per device when few envs finished: an eighth of the
+    device's envs, or 0 (below :data:`COMPACT_RESET_FROM` envs a device) for "reset the
+    whole batch whenever any env finished"."""
+    return per_device // 8 if per_device >= COMPACT_RESET_FROM else 0
+
+
+def _where(done: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
+    return jnp.where(done.reshape(done.shape + (1,) * (old.ndim - 1)), new, old)
+
+
+def _rows(x: jax.Array, rows: int) -> jax.Array:
+    """``x`` with its env axis split into ``rows`` rows (one per device)."""
+    return x.reshape(rows, x.shape[0] // rows, *x.shape[1:])

@@ -173,7 +173,7 @@ def spread(mesh: Mesh | None, fn: Callable[..., Any], *args: Any) -> Any:
     (env) axis split over ``mesh`` (``None``: plain ``fn(*args)``).
 
     One program over the mesh, not a ``shard_map``: the compiler partitions it and adds
-    the one cross-device reduction (the auto-reset's ``any(done)``), so every device takes
+    the one cross-device reduction (the auto-reset's count of finished envs), so every device takes
     the same auto-reset decision and every env's arithmetic is as on one device. The C
     engine's call is partitioned along the env axis too (a ``custom_partitioning`` op,
     :mod:`jaxenvs.physics.cengine`): each device steps its own slice.

@@ -94,11 +94,11 @@ T* FieldPtr(mjData* d, const DataField& f) {
 
 // ------------------------------------------------------------------ a call's layout
 
-enum class Kind { kTime, kCopy, kDenseMoment };
+enum class Kind { kTime, kCopy, kBool, kDenseMoment };
 
 struct Slot {  // one argument or result
   Kind kind = Kind::kCopy;
-  const DataField* field = nullptr;  // kCopy, kDenseMoment
+  const DataField* field = nullptr;  // kCopy, kBool, kDenseMoment
   std::string name;
   int64_t size = 0;  // elements per simulation
 };
@@ -254,7 +254,9 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
       return s;
     }
     s.field = FindDataField(name);
-    if (!s.field || (!s.field->is_num && name != "eq_active")) {
+    if (input && name == "eq_active") {
+      s.kind = Kind::kBool;  // read from a bool (or uint8) buffer
+    } else if (!s.field || !s.field->is_num) {
       return ffi::Unexpected(Fail("'" + name + "' is not a floating-point mjData field"));
     }
     s.size = FieldSize(m, *s.field);
@@ -351,7 +353,7 @@ void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
     const Slot& s = plan.inputs[k];
     if (s.kind == Kind::kTime) {
       Load(a.in[k], a.in_type[k], sim, &d->time, 1);
-    } else if (s.name == "eq_active") {
+    } else if (s.kind == Kind::kBool) {
       const uint8_t* src = static_cast<const uint8_t*>(a.in[k]) + sim * s.size;
       mjtBool* dst = FieldPtr<mjtBool>(d, *s.field);
       for (int64_t i = 0; i < s.size; ++i) dst[i] = src[i] ? 1 : 0;
@@ -460,7 +462,7 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
     auto buf = args.get<ffi::AnyBuffer>(k);
     if (buf.has_error()) return buf.error();
     const Slot& s = plan->inputs[k];
-    bool boolean = s.name == "eq_active";
+    bool boolean = s.kind == Kind::kBool;
     if (boolean ? buf->element_type() != ffi::DataType::PRED && buf->element_type() != ffi::DataType::U8
                 : !IsFloat(buf->element_type())) {
       return Fail("input '" + s.name + "' has an unsupported dtype");
