@@ -68,6 +68,8 @@ _SCRIPT = textwrap.dedent(
     res["c_devices"] = jaxenvs.make("CartPole-v0", num_envs=8, physics="c").devices
     res["c_devices_big"] = jaxenvs.make("CartPole-v0", num_envs=2048, physics="c").devices
     res["c_devices_mid"] = jaxenvs.make("CartPole-v0", num_envs=1024, physics="c").devices
+    # ... and a task with c_envs_per_device=None (the hexapod's) stays on one device
+    res["c_walker_big"] = jaxenvs.make("HexapodWalk-v0", num_envs=2048, physics="c").devices
     arrays["c_2"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=2))[1][0]
     arrays["c_1"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=1))[1][0]
     # the Gymnasium vector env is spread as well, with the same numbers
@@ -104,6 +106,7 @@ def test_batch_spreads_over_all_devices_by_default(four_devices):
     assert (res["obs_shards_None"], res["obs_shards_2"], res["obs_shards_1"]) == (4, 2, 1)
     assert res["randomized_devices"] == 4
     assert (res["c_devices"], res["c_devices_mid"], res["c_devices_big"]) == (1, 2, 4)
+    assert res["c_walker_big"] == 1
 
 
 @pytest.mark.full  # a 4-device subprocess: the full tier

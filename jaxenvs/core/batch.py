@@ -48,7 +48,9 @@ class BatchedEnv:
         self.env = env
         self.num_envs = int(num_envs)
         self.randomize = bool(randomize)
-        n = placement.batch_devices(self.num_envs, devices, getattr(env, "physics", "mjx"))
+        n = placement.batch_devices(
+            self.num_envs, devices, getattr(env, "physics", "mjx"), env.c_envs_per_device
+        )
         #: the mesh the batch is spread over; ``None`` on one device
         self.mesh = placement.local_mesh(n)
 

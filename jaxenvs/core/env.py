@@ -14,6 +14,7 @@ import numpy as np
 from flax import struct
 
 from jaxenvs.config import require
+from jaxenvs.core.placement import C_ENVS_PER_DEVICE
 from jaxenvs.physics import PHYSICS_CHOICES, resolve_engine
 from jaxenvs.physics.sim import Sim
 
@@ -155,6 +156,14 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: on a CPU, ``physics="auto"`` picks MJX for batches of at least this many envs
     #: (:func:`jaxenvs.physics.resolve_engine`); ``None``: ``cpu_physics`` at every size.
     cpu_mjx_from: int | None = None
+
+    #: under ``physics="c"``, the fewest envs a host device steps when a batch spreads over
+    #: the CPU's devices by default (:func:`jaxenvs.core.placement.batch_devices`); ``None``:
+    #: a C batch stays on one device, stepped by every engine thread. Splitting pays where
+    #: the task's own JAX work (observation, reward, auto-reset) is a large part of a step,
+    #: which then runs on every device; a step that is mostly contact physics scales better
+    #: on one device's engine pool (benchmarks/NOTES.md, "The C engine's split, per task").
+    c_envs_per_device: int | None = C_ENVS_PER_DEVICE
 
     #: the derived ``mjx.Data`` fields the task reads (``sensordata``, ``actuator_force``,
     #: ``site_xpos``, ...; the state ``qpos``, ``qvel``, ... and the inputs such as

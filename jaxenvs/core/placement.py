@@ -122,28 +122,36 @@ def check_divisible(num_envs: int, devices: int, hint: str = "") -> None:
         )
 
 
-#: the fewest envs a device steps in a C batch spread by default: on a 16-core host (8
-#: devices) a C batch of 16 or 256 envs split eight ways stepped 2.2-2.3x slower than the
-#: same batch on one device (benchmarks/NOTES.md, "The C engine over the host devices")
+#: the fewest envs a device steps in a C batch spread by default (a task's
+#: ``c_envs_per_device`` unless it says otherwise): on a 16-core host (8 devices) a C batch
+#: of 16 or 256 envs split eight ways stepped 2.2-2.3x slower than the same batch on one
+#: device (benchmarks/NOTES.md, "The C engine over the host devices")
 C_ENVS_PER_DEVICE = 512
 
 
-def batch_devices(num_envs: int, devices: int | None, physics: str) -> int:
+def batch_devices(
+    num_envs: int,
+    devices: int | None,
+    physics: str,
+    c_envs_per_device: int | None = C_ENVS_PER_DEVICE,
+) -> int:
     """How many local devices a batch of ``num_envs`` envs is spread over.
 
     ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
     host devices or GPUs), or as many of them as ``num_envs`` divides over evenly, with a
     warning when that is fewer. Under the C engine (``physics="c"``) each device gets at
-    least :data:`C_ENVS_PER_DEVICE` envs: a smaller batch spreads over fewer devices, one
-    below that size. An explicit count must divide ``num_envs`` and exist, or
-    ``ValueError`` names the nearest valid sizes.
+    least ``c_envs_per_device`` envs (the task's; default :data:`C_ENVS_PER_DEVICE`): a
+    smaller batch spreads over fewer devices, one below that size; ``None`` keeps every
+    C batch on one device, stepped by all the engine's threads. An explicit count must
+    divide ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.
     """
     local = jax.local_device_count()
     available = local
     if devices is None and physics == "c":
-        available = max(1, min(local, num_envs // C_ENVS_PER_DEVICE))
+        per = num_envs if c_envs_per_device is None else c_envs_per_device
+        available = max(1, min(local, num_envs // max(per, 1)))
     if devices is None:
-        if available == 1:
+        if available == 1 or (physics == "c" and c_envs_per_device is None):
             return 1
         n = divisible_devices(num_envs, available)
         # a C batch capped below the local count divides by choice: no warning

@@ -31,16 +31,21 @@ from jaxenvs.core.sharding import (
 PyTree = Any
 
 
-def run_mesh(num_envs: int, physics: str, devices: int | None = None) -> Mesh:
+def run_mesh(
+    num_envs: int,
+    physics: str,
+    devices: int | None = None,
+    c_envs_per_device: int | None = placement.C_ENVS_PER_DEVICE,
+) -> Mesh:
     """The mesh a run of ``num_envs`` envs stepped by ``physics`` trains over.
 
     ``devices=None`` in a single process: the local devices
-    :func:`jaxenvs.core.placement.batch_devices` picks (all that ``num_envs`` divides over, under
-    either engine). Several processes: every host's
-    devices. A count: the first ``devices`` devices.
+    :func:`jaxenvs.core.placement.batch_devices` picks for the task's ``c_envs_per_device``
+    (as its batched env does). Several processes: every host's devices. A count: the
+    first ``devices`` devices.
     """
     if devices is None and jax.process_count() == 1:
-        devices = placement.batch_devices(num_envs, None, physics)
+        devices = placement.batch_devices(num_envs, None, physics, c_envs_per_device)
     return make_mesh(devices)
 
 

@@ -65,7 +65,7 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     compiling.
     """
     env, trainer = build(resolved)
-    mesh = run_mesh(resolved.agent.num_envs, env.physics, devices)
+    mesh = run_mesh(resolved.agent.num_envs, env.physics, devices, env.c_envs_per_device)
     init_fn: Any = None
     chunk_fn: Any = None
     if mesh.size > 1:

@@ -229,6 +229,7 @@ class HexapodWalk(RobotTask, Env[WalkConfig]):
     """
 
     cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    c_envs_per_device = None  # contact physics: one device's engine pool (NOTES)
     #: the servos' forces (the energy term); every other reading comes from qpos/qvel
     derived_fields: tuple[str, ...] | None = ("actuator_force",)
     robot: Hexapod
@@ -418,6 +419,7 @@ class HexapodOneLeg(RobotTask, Env[OneLegConfig]):
     """
 
     cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
+    c_envs_per_device = None  # contact physics: one device's engine pool (NOTES)
     #: every reading comes from qpos/qvel
     derived_fields: tuple[str, ...] | None = ()
     robot: HexapodLeg

@@ -274,6 +274,7 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     """
 
     cpu_physics = "c"
+    c_envs_per_device = None  # contact physics: one device's engine pool (NOTES)
     #: the servos' forces (the energy term); every other reading comes from qpos/qvel
     derived_fields: tuple[str, ...] | None = ("actuator_force",)
     robot: Hexapod
