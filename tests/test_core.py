@@ -99,7 +99,7 @@ def test_batched_shapes_and_fresh_autoreset(get_checker):
 
 @pytest.mark.parametrize("randomize", [False, True])
 def test_compact_auto_reset_equals_resetting_the_whole_batch(monkeypatch, randomize):
-    """From 64 envs a device a step computes fresh starts only for its finished envs
+    """On a CPU, from 64 envs a device, a step computes fresh starts only for its finished envs
     (compacted into an eighth of the batch), and the whole batch only when more finished:
     the states are those of resetting the whole batch, bit for bit, through both cases."""
     from jaxenvs.actions import random_actions
@@ -107,6 +107,7 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(monkeypatch, random
 
     n, steps = 128, 150
     assert batch.reset_slots(n) == 16 and batch.reset_slots(63) == 0
+    assert batch.reset_slots(n, "gpu") == 0
 
     def run(slots):
         monkeypatch.setattr(batch, "reset_slots", slots)
@@ -127,7 +128,7 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(monkeypatch, random
         return jax.jit(rollout)(jax.random.key(4))
 
     compact, counts = run(batch.reset_slots)
-    whole, _ = run(lambda per_device: 0)
+    whole, _ = run(lambda per_device, platform: 0)
     counts = np.asarray(counts)
     assert ((counts > 0) & (counts <= 16)).sum() > 20  # the compact path ran
     assert (counts > 16).any()  # and the whole-batch one (the first wave of falls)

@@ -26,12 +26,12 @@ class BatchedEnv:
     ``env.reset(k, params)``'s for its key ``k``, the params drawn from
     ``jax.random.split(k, 4)[3]`` (with JAX's default partitionable threefry).
 
-    **What a step resets.** A step computes fresh starts only when an env finished. From
-    :data:`COMPACT_RESET_FROM` envs a device, it computes them for the finished envs alone,
-    gathered into :func:`reset_slots` places a device (an eighth of its envs), and for the
-    whole batch only when more than that finished on some device; below that size, for the
-    whole batch. Each env's fresh start depends on its own key (and params) only, so the
-    states are the same bit for bit either way.
+    **What a step resets.** A step computes fresh starts only when an env finished. On a
+    CPU, from :data:`COMPACT_RESET_FROM` envs a device, it computes them for the finished
+    envs alone, gathered into :func:`reset_slots` places a device (an eighth of its envs),
+    and for the whole batch only when more than that finished on some device; below that
+    size, and on accelerators, for the whole batch. Each env's fresh start depends on its
+    own key (and params) only, so the states are the same bit for bit either way.
 
     **Devices.** The batch is spread over the local devices that
     :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
@@ -122,7 +122,7 @@ class BatchedEnv:
         done = nxt.done
         rows = self.devices
         per_row = self.num_envs // rows
-        slots = reset_slots(per_row)
+        slots = reset_slots(per_row, jax.default_backend())
 
         def reset_all(nxt: State) -> State:
             fresh = self.fresh_starts(nxt.key, params)
@@ -183,11 +183,15 @@ class BatchedEnv:
 COMPACT_RESET_FROM = 64
 
 
-def reset_slots(per_device: int) -> int:
-    """Fresh starts a step computes per device when few envs finished: an eighth of the
-    device's envs, or 0 (below :data:`COMPACT_RESET_FROM` envs a device) for "reset the
-    whole batch whenever any env finished"."""
-    return per_device // 8 if per_device >= COMPACT_RESET_FROM else 0
+def reset_slots(per_device: int, platform: str = "cpu") -> int:
+    """Fresh starts a step computes per device when few envs finished: on a CPU an eighth
+    of the device's envs, or 0 for "reset the whole batch whenever any env finished":
+    below :data:`COMPACT_RESET_FROM` envs a device, and on accelerators (on an H200 the
+    compacted reset made the walker's and the joystick's training 2.3-2.4% slower:
+    benchmarks/NOTES.md, "A compact auto-reset")."""
+    if platform != "cpu" or per_device < COMPACT_RESET_FROM:
+        return 0
+    return per_device // 8
 
 
 def _where(done: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
