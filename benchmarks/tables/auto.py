@@ -83,6 +83,40 @@ def device_count(recs: list[Rec]) -> Cells:
     return cells
 
 
+def reset_ab(recs: list[Rec]) -> Cells:
+    """The compact auto-reset against resetting the whole batch: each task, engine and
+    batch of each record, and ``mujoco.rollout`` beside them."""
+    cells = [["task", "engine", "envs", "compact", "whole batch", "compact / whole", "devices"]]
+    for rec in recs:
+        got: dict[tuple[str, str, int], dict[str, Any]] = {}
+        for r in rows(rec):
+            if r["name"] == "mujoco.rollout":
+                cells.append(
+                    [r["task"], "mujoco.rollout", f"{r['num_envs']:,}", rate(r["env_steps_per_s"])]
+                    + ["", "", ""]
+                )
+                continue
+            kind, _, engine = r["variant"].partition("_")
+            got[(r["task"], engine or "c", r["num_envs"], kind)] = r
+        for task, engine, n in sorted({k[:3] for k in got}):
+            a, b = got.get((task, engine, n, "compact")), got.get((task, engine, n, "whole"))
+            if a is None or b is None:
+                continue
+            ratio = a["env_steps_per_s"] / b["env_steps_per_s"]
+            cells.append(
+                [
+                    task,
+                    engine,
+                    f"{n:,}",
+                    rate(a["env_steps_per_s"]),
+                    rate(b["env_steps_per_s"]),
+                    f"{ratio:.2f}",
+                    str(a.get("devices")),
+                ]
+            )
+    return cells
+
+
 def c_costs(recs: list[Rec]) -> Cells:
     (rec,) = recs
     cells = [["measure", "what", "figure"]]
@@ -119,6 +153,11 @@ def _sweep_files(machine: str) -> tuple[str, ...]:
 
 
 TABLES = {
+    "engines-sweep-cpu16-compact": Table(_sweep_files("cpu16compact"), engines_sweep),
+    "engines-cpu16-device-count-compact": Table(
+        ("engines_cpu16_device_count_compact",), device_count
+    ),
+    "auto-reset-ab": Table(("auto_reset_ab_cpu16", "auto_reset_ab_cpu2"), reset_ab),
     "engines-sweep-cpu16-fields": Table(_sweep_files("cpu16fields"), engines_sweep),
     "engines-sweep-cpu2-fields": Table(_sweep_files("cpu2fields"), engines_sweep),
     "engines-cpu16-device-count": Table(("engines_cpu16_device_count",), device_count),

@@ -162,7 +162,8 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: a C batch stays on one device, stepped by every engine thread. Splitting pays where
     #: the task's own JAX work (observation, reward, auto-reset) is a large part of a step,
     #: which then runs on every device; a step that is mostly contact physics scales better
-    #: on one device's engine pool (benchmarks/NOTES.md, "The C engine's split, per task").
+    #: on one device's engine pool (benchmarks/NOTES.md, "A compact auto-reset, and the walker's C
+    #: batch on one device").
     c_envs_per_device: int | None = C_ENVS_PER_DEVICE
 
     #: the derived ``mjx.Data`` fields the task reads (``sensordata``, ``actuator_force``,
