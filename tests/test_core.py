@@ -97,8 +97,17 @@ def test_batched_shapes_and_fresh_autoreset(get_checker):
     assert np.all(flen[done] >= 1)
 
 
-@pytest.mark.parametrize("randomize", [False, True])
-def test_compact_auto_reset_equals_resetting_the_whole_batch(monkeypatch, randomize):
+@pytest.mark.parametrize(
+    ("randomize", "physics", "raw_key"),
+    [
+        (False, "c", False),
+        (True, "c", True),  # randomised params, and a raw uint32 key
+        pytest.param(False, "mjx", False, marks=pytest.mark.full),  # two MJX compiles
+    ],
+)
+def test_compact_auto_reset_equals_resetting_the_whole_batch(
+    monkeypatch, randomize, physics, raw_key
+):
     """On a CPU, from 64 envs a device, a step computes fresh starts only for its finished envs
     (compacted into an eighth of the batch), and the whole batch only when more finished:
     the states are those of resetting the whole batch, bit for bit, through both cases."""
@@ -111,7 +120,7 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(monkeypatch, random
 
     def run(slots):
         monkeypatch.setattr(batch, "reset_slots", slots)
-        benv = jaxenvs.make("CartPole-v0", num_envs=n, physics="c", randomize=randomize)
+        benv = jaxenvs.make("CartPole-v0", num_envs=n, physics=physics, randomize=randomize)
 
         def body(s, xs):
             k, i = xs
@@ -125,7 +134,7 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(monkeypatch, random
             xs = (jax.random.split(key, steps), jnp.arange(steps))
             return jax.lax.scan(body, benv.reset(key), xs)
 
-        return jax.jit(rollout)(jax.random.key(4))
+        return jax.jit(rollout)(jax.random.PRNGKey(4) if raw_key else jax.random.key(4))
 
     compact, counts = run(batch.reset_slots)
     whole, _ = run(lambda per_device, platform: 0)

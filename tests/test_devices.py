@@ -68,6 +68,16 @@ _SCRIPT = textwrap.dedent(
     res["c_devices"] = jaxenvs.make("CartPole-v0", num_envs=8, physics="c").devices
     res["c_devices_big"] = jaxenvs.make("CartPole-v0", num_envs=2048, physics="c").devices
     res["c_devices_mid"] = jaxenvs.make("CartPole-v0", num_envs=1024, physics="c").devices
+    # the compact auto-reset over 4 devices (64 envs each, 8 places) equals the whole one
+    from jaxenvs.core import batch as _batch
+    compact = _batch.reset_slots
+    for tag, slots in (("compact", compact), ("whole", lambda n, platform="cpu": 0)):
+        _batch.reset_slots = slots
+        benv = jaxenvs.make("CartPole-v0", num_envs=256, physics="c", devices=4)
+        res[f"reset_devices_{tag}"] = benv.devices
+        for name, x in zip(("obs", "reward", "done"), rollout(benv, 60)[1]):
+            arrays[f"reset_{tag}_{name}"] = x
+    _batch.reset_slots = compact
     # ... and a task with c_envs_per_device=None (the hexapod's) stays on one device
     res["c_walker_big"] = jaxenvs.make("HexapodWalk-v0", num_envs=2048, physics="c").devices
     arrays["c_2"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=2))[1][0]
@@ -107,6 +117,17 @@ def test_batch_spreads_over_all_devices_by_default(four_devices):
     assert res["randomized_devices"] == 4
     assert (res["c_devices"], res["c_devices_mid"], res["c_devices_big"]) == (1, 2, 4)
     assert res["c_walker_big"] == 1
+
+
+@pytest.mark.full  # the 4-device subprocess above
+def test_compact_auto_reset_over_devices_equals_the_whole_one(four_devices):
+    res, arrays = four_devices
+    assert res["reset_devices_compact"] == res["reset_devices_whole"] == 4
+    assert arrays["reset_compact_done"].sum() > 60  # resets happened, on every step or so
+    for name in ("obs", "reward", "done"):
+        np.testing.assert_array_equal(
+            arrays[f"reset_compact_{name}"], arrays[f"reset_whole_{name}"]
+        )
 
 
 @pytest.mark.full  # a 4-device subprocess: the full tier

@@ -466,7 +466,11 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
     config.validate()
     single: Env = env.env if isinstance(env, BatchedEnv) else env
     # one device here: the runner spreads the whole training state (jaxenvs.core.sharding)
-    benv = BatchedEnv(single, config.num_envs, randomize=config.randomize, devices=1)
+    # the runner vmaps the chunk over seeds, under which a compact reset's switch would
+    # compute all its branches (BatchedEnv, "What a step resets")
+    benv = BatchedEnv(
+        single, config.num_envs, randomize=config.randomize, devices=1, compact_reset=False
+    )
     net = make_network(single, config)
     head = CATEGORICAL if single.discrete else GAUSSIAN
     c = config

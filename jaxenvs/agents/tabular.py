@@ -336,7 +336,8 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
     disc = make_discretiser(low, high, config.number_splits)
     num_actions = env.action_size
     # one device here: the runner spreads the whole training state (jaxenvs.core.sharding)
-    benv = BatchedEnv(env, config.num_envs, devices=1)
+    # vmapped over seeds: a compact reset's switch would compute all its branches there
+    benv = BatchedEnv(env, config.num_envs, devices=1, compact_reset=False)
     n = config.num_envs
     gamma, alpha = config.gamma, config.alpha
     limit = config.episodes_per_env

@@ -27,11 +27,15 @@ class BatchedEnv:
     ``jax.random.split(k, 4)[3]`` (with JAX's default partitionable threefry).
 
     **What a step resets.** A step computes fresh starts only when an env finished. On a
-    CPU, from :data:`COMPACT_RESET_FROM` envs a device, it computes them for the finished
-    envs alone, gathered into :func:`reset_slots` places a device (an eighth of its envs),
-    and for the whole batch only when more than that finished on some device; below that
-    size, and on accelerators, for the whole batch. Each env's fresh start depends on its
-    own key (and params) only, so the states are the same bit for bit either way.
+    CPU, from :data:`COMPACT_RESET_FROM` envs a device of the batch's own spread (all
+    envs for a batch on one device, however its caller places it), it computes them for
+    the finished envs alone, gathered into :func:`reset_slots` places a device (an eighth
+    of its envs), and for the whole batch only when more than that finished on some
+    device; below that size, on accelerators, and with ``compact_reset=False``, for the
+    whole batch. Each env's fresh start depends on its own key (and params) only, so the
+    states are the same bit for bit either way. Pass ``compact_reset=False`` for a batch
+    stepped under ``vmap`` (the training runner vmaps its agents over seeds): there the
+    choice between the three cases is batched, and ``vmap`` computes all of them.
 
     **Devices.** The batch is spread over the local devices that
     :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
@@ -41,13 +45,20 @@ class BatchedEnv:
     """
 
     def __init__(
-        self, env: Env, num_envs: int, randomize: bool = False, devices: int | None = None
+        self,
+        env: Env,
+        num_envs: int,
+        randomize: bool = False,
+        devices: int | None = None,
+        compact_reset: bool = True,
     ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.env = env
         self.num_envs = int(num_envs)
         self.randomize = bool(randomize)
+        #: whether a step may reset only its finished envs (see "What a step resets")
+        self.compact_reset = bool(compact_reset)
         n = placement.batch_devices(
             self.num_envs, devices, getattr(env, "physics", "mjx"), env.c_envs_per_device
         )
@@ -64,7 +75,9 @@ class BatchedEnv:
         :func:`jaxenvs.core.sharding.shard_jit`); see :mod:`jaxenvs.core.placement`."""
         if self.mesh is None:
             return self
-        return BatchedEnv(self.env, self.num_envs, self.randomize, devices=1)
+        return BatchedEnv(
+            self.env, self.num_envs, self.randomize, devices=1, compact_reset=self.compact_reset
+        )
 
     def __getattr__(self, name: str) -> Any:
         raise AttributeError(f"BatchedEnv has no attribute {name!r}; the single env is at .env")
@@ -122,7 +135,7 @@ class BatchedEnv:
         done = nxt.done
         rows = self.devices
         per_row = self.num_envs // rows
-        slots = reset_slots(per_row, jax.default_backend())
+        slots = reset_slots(per_row, jax.default_backend()) if self.compact_reset else 0
 
         def reset_all(nxt: State) -> State:
             fresh = self.fresh_starts(nxt.key, params)
@@ -136,7 +149,7 @@ class BatchedEnv:
             )
             keys = _rows(nxt.key, rows)
             picked = jax.vmap(lambda k, i: k[jnp.minimum(i, per_row - 1)])(keys, index)
-            fresh = self.fresh_starts(picked.reshape(rows * slots), params)
+            fresh = self.fresh_starts(picked.reshape(rows * slots, *picked.shape[2:]), params)
 
             def put(new: jax.Array, old: jax.Array) -> jax.Array:
                 new = new.reshape(rows, slots, *new.shape[1:])
@@ -186,9 +199,10 @@ COMPACT_RESET_FROM = 64
 def reset_slots(per_device: int, platform: str = "cpu") -> int:
     """Fresh starts a step computes per device when few envs finished: on a CPU an eighth
     of the device's envs, or 0 for "reset the whole batch whenever any env finished":
-    below :data:`COMPACT_RESET_FROM` envs a device, and on accelerators (on an H200 the
-    compacted reset made the walker's and the joystick's training 2.3-2.4% slower:
-    benchmarks/NOTES.md, "A compact auto-reset")."""
+    below :data:`COMPACT_RESET_FROM` envs a device, and on accelerators, where it was
+    measured only inside training, which computed every case under the seeds' ``vmap``
+    (benchmarks/NOTES.md, "A compact auto-reset, and the walker's C batch on one
+    device")."""
     if platform != "cpu" or per_device < COMPACT_RESET_FROM:
         return 0
     return per_device // 8

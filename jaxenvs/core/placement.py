@@ -9,11 +9,13 @@ Three decisions, all here:
 * **The devices a batch is spread over.** A batch of ``num_envs`` envs is spread over
   ``n`` devices by splitting its leading (env) axis over a 1-D mesh whose axis is
   :data:`ENV_AXIS`; ``num_envs`` must then be a multiple of ``n``. :func:`batch_devices`
-  picks ``n``: by default every local device that the batch divides over, under MJX and
-  under the C engine alike (each device's engine call steps its slice with its share of
-  the engine's threads: :mod:`jaxenvs.physics.cengine`). :class:`jaxenvs.core.BatchedEnv`
-  keeps its batch on :func:`local_mesh` ``(n)`` through :func:`spread`; the runner spreads its
-  training state over the same count (:mod:`jaxenvs.run.programs`).
+  picks ``n``: by default every local device that the batch divides over, under MJX, and
+  under the C engine from a task's ``c_envs_per_device`` envs a device (each device's
+  engine call steps its slice with its share of the engine's threads:
+  :mod:`jaxenvs.physics.cengine`; ``None`` keeps a C batch on one device).
+  :class:`jaxenvs.core.BatchedEnv` keeps its batch on :func:`local_mesh` ``(n)`` through
+  :func:`spread`; the runner spreads its training state over the same count
+  (:mod:`jaxenvs.run.programs`).
 * **Placing it yourself.** ``devices=1`` (``BatchedEnv.on_one_device()``) keeps a batch
   unspread, for callers that lay it out with their own shardings
   (:mod:`jaxenvs.core.sharding`'s meshes over every host's devices, which check their sizes with

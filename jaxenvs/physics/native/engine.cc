@@ -254,7 +254,7 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
       return s;
     }
     s.field = FindDataField(name);
-    if (input && name == "eq_active") {
+    if (input && name == "eq_active" && s.field) {
       s.kind = Kind::kBool;  // read from a bool (or uint8) buffer
     } else if (!s.field || !s.field->is_num) {
       return ffi::Unexpected(Fail("'" + name + "' is not a floating-point mjData field"));
