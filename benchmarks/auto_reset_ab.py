@@ -23,7 +23,6 @@ import time
 
 import results_io
 
-import jaxenvs
 from jaxenvs import bench
 from jaxenvs.bench import peers
 from jaxenvs.core import batch
@@ -49,12 +48,8 @@ def main() -> None:
                 runner.variant = variant
                 print(f"# prepared {task} x{n} {variant} in {time.perf_counter() - t0:.1f} s")
                 runners.append(runner)
-        jaxenvs.make(task)  # the peers read the task's model
-        runners += [
-            p
-            for p in peers.peer_runners(task, 4096)
-            if isinstance(p, bench.Runner) and p.name == "mujoco.rollout"
-        ]
+        rollout = peers.peer_runners(task, 4096, names=("mujoco.rollout",))
+        runners += [p for p in rollout if isinstance(p, bench.Runner)]
     batch.reset_slots = compact
     results = bench.time_runners(runners, repeats=3, target_s=0.3)
     for r in results:

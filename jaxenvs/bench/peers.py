@@ -198,8 +198,10 @@ def peer_runners(
     gymnax_envs: int = 16384,
     threads: int | None = None,
     sync_envs: int = 16,
+    names: Sequence[str] | None = None,
 ) -> list[Runner | Skipped]:
-    """Every peer of ``task``, prepared; missing ones as :class:`Skipped`.
+    """Every peer of ``task`` (or those whose name is in ``names``), prepared; missing
+    ones as :class:`Skipped`.
 
     All tasks get MuJoCo's C rollout on our own MJCF at our substeps (``threads`` threads,
     default all cores); tasks with a Gymnasium/EnvPool counterpart (:data:`PEER_IDS`) get
@@ -224,6 +226,8 @@ def peer_runners(
         makers.append(("gymnax", "CartPole-v1", lambda: _gymnax(task, gymnax_envs, 100)))
     out: list[Runner | Skipped] = []
     for name, variant, make in makers:
+        if names is not None and name not in names:
+            continue
         try:
             out.append(make())
         except Exception as err:  # a peer that breaks while warming up is reported, not fatal

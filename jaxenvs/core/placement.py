@@ -150,10 +150,10 @@ def batch_devices(
     local = jax.local_device_count()
     available = local
     if devices is None and physics == "c":
-        per = num_envs if c_envs_per_device is None else c_envs_per_device
-        available = max(1, min(local, num_envs // max(per, 1)))
+        per = num_envs if c_envs_per_device is None else max(c_envs_per_device, 1)
+        available = max(1, min(local, num_envs // per))
     if devices is None:
-        if available == 1 or (physics == "c" and c_envs_per_device is None):
+        if available == 1:
             return 1
         n = divisible_devices(num_envs, available)
         # a C batch capped below the local count divides by choice: no warning
