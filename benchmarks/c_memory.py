@@ -8,6 +8,9 @@ num_envs=N, randomize=True, physics="c")``, the batched reset compiled
 (``lower().compile()``) and run, the step (state donated) compiled, 20 steps; the peak is
 read after each stage. Cold: an empty JAX compile-cache directory; warm: a second process
 on the cache the cold one filled. ``--runs`` of each; a row keeps every run and the median.
+The programs are compiled with ``jaxenvs.machine.jit`` (jaxenvs' XLA options, as the
+library compiles its own); ``--jax-jit`` also measures them compiled by plain ``jax.jit``
+(XLA's defaults), run by run interleaved with the first.
 
 ``--tree DIR`` measures another checkout than this one (on the subprocesses'
 ``PYTHONPATH``); ``--baseline DIR`` a second one the same way, run by run interleaved with
@@ -39,13 +42,14 @@ _RUN = (
 out = {{"import": base}}
 benv = jaxenvs.make("HexapodWalk-v0", num_envs={n}, randomize=True, physics="c")
 out["make"] = peak() - base
-reset = jax.jit(benv.reset).lower(jax.random.key(0)).compile()
+import jaxenvs.machine
+reset = {jit}(benv.reset).lower(jax.random.key(0)).compile()
 out["reset_compiled"] = peak() - base
 s = reset(jax.random.key(0))
 jax.block_until_ready(s)
 out["reset_ran"] = peak() - base
 a = jnp.zeros(({n}, 18))
-step = jax.jit(benv.step, donate_argnums=0).lower(s, a).compile()
+step = {jit}(benv.step, donate_argnums=0).lower(s, a).compile()
 out["step_compiled"] = peak() - base
 for _ in range(20):
     s = step(s, a)
@@ -65,9 +69,9 @@ def _commit(tree: Path) -> str:
     return done.stdout.strip() or "unknown"
 
 
-def _run(tree: Path, n: int, cache: str) -> dict:
+def _run(tree: Path, n: int, cache: str, jit: str) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    code = _RUN.format(n=n, cache=cache)
+    code = _RUN.format(n=n, cache=cache, jit=jit)
     done = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
     )
@@ -82,21 +86,24 @@ def main() -> None:
     parser.add_argument("--tree-commit", help="its commit, if DIR is not a git checkout")
     parser.add_argument("--baseline", type=Path, help="another checkout to measure alike")
     parser.add_argument("--baseline-commit", help="its commit, if DIR is not a git checkout")
+    parser.add_argument("--jax-jit", action="store_true", help="also with plain jax.jit")
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
+    jits = ["jaxenvs.machine.jit", *(["jax.jit"] if args.jax_jit else [])]
     trees = {"this": (args.tree or Path(__file__).resolve().parents[1]).resolve()}
     if args.baseline:
         trees["baseline"] = args.baseline.resolve()
-    runs: dict[tuple[str, str], list[dict]] = {}
+    runs: dict[tuple[str, str, str], list[dict]] = {}
     for i in range(args.runs):
         for label, tree in trees.items():
-            with tempfile.TemporaryDirectory() as cache:
-                for which in ("cold", "warm"):
-                    r = _run(tree, args.envs, cache)
-                    runs.setdefault((label, which), []).append(r)
-                    print(i, label, which, r, flush=True)
+            for jit in jits:
+                with tempfile.TemporaryDirectory() as cache:
+                    for which in ("cold", "warm"):
+                        r = _run(tree, args.envs, cache, jit)
+                        runs.setdefault((label, jit, which), []).append(r)
+                        print(i, label, jit, which, r, flush=True)
     rows = []
-    for (label, which), rs in runs.items():
+    for (label, jit, which), rs in runs.items():
         commit = args.tree_commit if label == "this" else args.baseline_commit
         rows.append(
             {
@@ -104,6 +111,7 @@ def main() -> None:
                 "tree": label,
                 "tree_commit": commit or _commit(trees[label]),
                 "envs": args.envs,
+                "jit": jit,
                 "randomize": True,
                 "compile_cache": which,
                 "runs": rs,

@@ -20,6 +20,12 @@ first JAX operation), so library users who want it call :func:`use_cores` first 
 
 A choice the user already made wins: ``XLA_FLAGS=--xla_force_host_platform_device_count``,
 ``JAX_NUM_CPU_DEVICES`` or ``jax.config.update("jax_num_cpu_devices", n)``.
+
+**How jaxenvs compiles.** Every program jaxenvs compiles goes through :func:`jit`
+(``jax.jit`` with :data:`COMPILER_OPTIONS`: on a CPU, XLA's loop emitters, for less
+compile time and memory; :mod:`jaxenvs.core.xla`). Jit an env yourself the same way::
+
+    step = jaxenvs.machine.jit(benv.step, donate_argnums=0)
 """
 
 from __future__ import annotations
@@ -30,6 +36,17 @@ from typing import Any
 import jax
 
 from jaxenvs.core import placement
+from jaxenvs.core.xla import COMPILER_OPTIONS, jit
+
+__all__ = [
+    "COMPILER_OPTIONS",
+    "cores",
+    "cpu_threads",
+    "describe",
+    "jit",
+    "usable_cores",
+    "use_cores",
+]
 
 _cores: int | None = None
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from jaxenvs.actions import random_actions
 from jaxenvs.core import STANDARD_INFO_KEYS, BatchedEnv, Env, State
+from jaxenvs.core.xla import jit
 
 
 class TaskCheckError(AssertionError):
@@ -40,7 +41,7 @@ def _counting_jit(fn: Callable[..., Any]) -> tuple[Callable[..., Any], list[int]
         count[0] += 1
         return fn(*args)
 
-    return jax.jit(traced), count
+    return jit(traced), count
 
 
 def _leaves_close(a: Any, b: Any, atol: float) -> bool:
@@ -71,7 +72,7 @@ class TaskChecker:
         self.reset, self.reset_count = _counting_jit(env.reset)
         self.step, self.step_count = _counting_jit(env.step)
         self.benv = BatchedEnv(env, num_envs, devices=1)
-        self._rollout = jax.jit(self._rollout_fn)
+        self._rollout = jit(self._rollout_fn)
 
     def _rollout_fn(self, key: jax.Array) -> tuple[State, State]:
         reset_key, run_key = jax.random.split(key)
@@ -141,7 +142,7 @@ class TaskChecker:
             return env._act(k, s.data, s.extras, act, params)[0].qpos
 
         for hook, fn, got in (("_observe", observe, "obs"), ("_act", act_qpos, "qpos")):
-            run = jax.jit(fn)
+            run = jit(fn)
             first, again, second = (np.asarray(run(k)) for k in (k1, k1, k2))
             if not np.array_equal(first, again, equal_nan=True):
                 _fail("keys", f"{hook} gave different results for the same key")
@@ -192,7 +193,7 @@ class TaskChecker:
         acts = [random_actions(self.env, k) for k in jax.random.split(jax.random.key(8), n)]
         singles = [self.step(s, a) for s, a in zip(states, acts, strict=True)]
         stacked_in = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
-        batched = jax.jit(jax.vmap(self.env.step))(stacked_in, jnp.stack(acts))
+        batched = jit(jax.vmap(self.env.step))(stacked_in, jnp.stack(acts))
         stacked_out = jax.tree.map(lambda *xs: jnp.stack(xs), *singles)
         if not _leaves_close(
             (batched.obs, batched.reward, batched.data.qpos),
@@ -283,7 +284,7 @@ def check_engine_parity(
             keys = jax.random.split(act_key, steps)
             return jax.lax.scan(body, env.reset(reset_key), keys)[1]
 
-        runs[physics] = jax.device_get(jax.jit(roll)(jax.random.key(seed)))
+        runs[physics] = jax.device_get(jit(roll)(jax.random.key(seed)))
     for name, want in runs["mjx"].items():
         got, want = np.asarray(runs["c"][name], np.float64), np.asarray(want, np.float64)
         close = np.isclose(got, want, atol=atol, rtol=1e-4)

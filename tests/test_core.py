@@ -109,8 +109,8 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(
     monkeypatch, randomize, physics, raw_key
 ):
     """On a CPU, from 64 envs a device, a step computes fresh starts only for its finished envs
-    (compacted into an eighth of the batch), and the whole batch only when more finished:
-    the states are those of resetting the whole batch, bit for bit, through both cases."""
+    (compacted into chunks of an eighth of the batch, one loop iteration each): the states
+    are those of resetting the whole batch, bit for bit, with one chunk and with several."""
     from jaxenvs.actions import random_actions
     from jaxenvs.core import batch
 
@@ -140,7 +140,7 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(
     whole, _ = run(lambda per_device, platform: 0)
     counts = np.asarray(counts)
     assert ((counts > 0) & (counts <= 16)).sum() > 20  # the compact path ran
-    assert (counts > 16).any()  # and the whole-batch one (the first wave of falls)
+    assert (counts > 16).any()  # and several chunks (the first wave of falls)
     flat = [
         jax.random.key_data(x) if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key) else x
         for x in jax.tree.leaves((compact, whole))

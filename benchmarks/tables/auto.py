@@ -133,16 +133,39 @@ def c_costs(recs: list[Rec]) -> Cells:
 
 
 def c_memory(recs: list[Rec]) -> Cells:
-    """Peak RSS by stage (medians of the runs) of each checkout, cold and warm."""
+    """Peak RSS by stage (medians of the runs) of each checkout and compiler, cold and
+    warm (files before the compiler column were all compiled by plain ``jax.jit``)."""
     (rec,) = recs
     stages = ("make", "reset_compiled", "reset_ran", "step_compiled", "steps")
-    head = ["commit", "compile cache", "runs", "make", "reset compiled", "reset ran"]
-    cells = [[*head, "step compiled", "20 steps (peak)", "peaks of the runs"]]
+    head = ["commit", "compiled by", "compile cache", "runs", "make", "reset compiled"]
+    cells = [[*head, "reset ran", "step compiled", "20 steps (peak)", "peaks of the runs"]]
     for r in rows(rec, measure="memory_stages"):
         peaks = ", ".join(f"{run['steps']:.0f}" for run in r["runs"])
         figures = [f"{r[s]:.0f}" for s in stages]
         figures[-1] = f"**{figures[-1]}**"
-        cells.append([r["tree_commit"], r["compile_cache"], str(len(r["runs"])), *figures, peaks])
+        jit = f"`{r.get('jit', 'jax.jit')}`"
+        cells.append(
+            [r["tree_commit"], jit, r["compile_cache"], str(len(r["runs"])), *figures, peaks]
+        )
+    return cells
+
+
+def emitters_ab(recs: list[Rec]) -> Cells:
+    """XLA's loop emitters (jaxenvs' options) against its fusion emitters: throughput and
+    compile time of each task, engine and batch, one record each."""
+    cells = [["task", "engine", "envs", "loop", "fusion", "loop / fusion"]]
+    cells[0] += ["compile, loop", "compile, fusion"]
+    for rec in recs:
+        got = {(r["task"], r["physics"], r["num_envs"], r["variant"]): r for r in rows(rec)}
+        for task, engine, n in sorted({k[:3] for k in got}):
+            a, b = got.get((task, engine, n, "loop")), got.get((task, engine, n, "fusion"))
+            if a is None or b is None:
+                continue
+            ratio = a["env_steps_per_s"] / b["env_steps_per_s"]
+            cells.append(
+                [task, engine, f"{n:,}", rate(a["env_steps_per_s"]), rate(b["env_steps_per_s"])]
+                + [f"{ratio:.2f}", secs(a["compile_s"]), secs(b["compile_s"])]
+            )
     return cells
 
 
@@ -167,4 +190,7 @@ TABLES = {
     "engines-sweep-cpu2": Table(_sweep_files("cpu2"), engines_sweep_before),
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
     "c-memory-cpu2": Table(("c_memory_cpu2",), c_memory),
+    "c-memory-cpu2-emitters": Table(("c_memory_cpu2_emitters",), c_memory),
+    "emitters-ab-cpu2": Table(("compiler_options_ab_cpu2",), emitters_ab),
+    "auto-reset-ab-chunks": Table(("auto_reset_ab_cpu2chunks",), reset_ab),
 }

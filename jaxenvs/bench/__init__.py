@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import jaxenvs
 from jaxenvs.actions import random_actions
 from jaxenvs.core import BatchedEnv, Env, State
+from jaxenvs.core.xla import jit
 
 MODES = ("full", "functional", "physics")
 
@@ -190,10 +191,10 @@ def prepare_batched(
 ) -> Runner:
     """:func:`prepare_ours` for an env already built (e.g. with config overrides), on one
     device; the runner is filed under ``task`` with ``variant`` (default: ``mode``)."""
-    run = jax.jit(_scan_fn(benv, mode, steps), donate_argnums=0)
+    run = jit(_scan_fn(benv, mode, steps), donate_argnums=0)
     keys = iter(jax.random.split(jax.random.key(0), 1_000_000))
 
-    state, reset_s = _timed(lambda: jax.block_until_ready(jax.jit(benv.reset)(next(keys))))
+    state, reset_s = _timed(lambda: jax.block_until_ready(jit(benv.reset)(next(keys))))
     lowered, trace_s = _timed(lambda: run.lower(state, next(keys)))
     compiled, compile_s = _timed(lowered.compile)
     state, run_s = _timed(lambda: jax.block_until_ready(compiled(state, next(keys))))

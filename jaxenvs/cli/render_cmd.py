@@ -16,6 +16,7 @@ from collections.abc import Callable
 from typing import Any
 
 from jaxenvs.cli import checks, engine_args
+from jaxenvs.core.xla import jit
 
 HELP = "render a video of an env with random actions or a trained policy (--policy RUN_DIR)"
 
@@ -85,7 +86,7 @@ def rollout(env: Any, act_fn: ActFn, steps: int, seed: int) -> Any:
         both = jax.tree.map(lambda a, b: jax.numpy.concatenate([a[None], b]), first, states)
         return jax.tree.map(lambda x: x[:, 0], both)
 
-    return jax.jit(run)(jax.random.key(seed))
+    return jit(run)(jax.random.key(seed))
 
 
 def _check_even_size(args: argparse.Namespace) -> None:

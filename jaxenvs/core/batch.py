@@ -29,13 +29,15 @@ class BatchedEnv:
     **What a step resets.** A step computes fresh starts only when an env finished. On a
     CPU, from :data:`COMPACT_RESET_FROM` envs a device of the batch's own spread (all
     envs for a batch on one device, however its caller places it), it computes them for
-    the finished envs alone, gathered into :func:`reset_slots` places a device (an eighth
-    of its envs), and for the whole batch only when more than that finished on some
-    device; below that size, on accelerators, and with ``compact_reset=False``, for the
-    whole batch. Each env's fresh start depends on its own key (and params) only, so the
-    states are the same bit for bit either way. Pass ``compact_reset=False`` for a batch
-    stepped under ``vmap`` (the training runner vmaps its agents over seeds): there the
-    choice between the three cases is batched, and ``vmap`` computes all of them.
+    the finished envs alone, gathered in chunks of :func:`reset_slots` places a device
+    (an eighth of its envs), one chunk a loop iteration, as many iterations as the device
+    with the most finished envs needs: the program holds one copy of the reset's code.
+    Below that size, on accelerators, and with ``compact_reset=False``, it computes them
+    for the whole batch. Each env's fresh start depends on its own key (and params) only,
+    so the states are the same bit for bit either way. Pass ``compact_reset=False`` for a
+    batch stepped under ``vmap`` (the training runner vmaps its agents over seeds): there
+    the loop's trip count is batched, and ``vmap`` runs every env through the most
+    iterations any of them needs.
 
     **Devices.** The batch is spread over the local devices that
     :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
@@ -141,30 +143,33 @@ class BatchedEnv:
             fresh = self.fresh_starts(nxt.key, params)
             return self._merge(nxt, done, lambda new, old: _where(done, new, old), fresh)
 
-        def reset_some(nxt: State) -> State:
-            # each device row's finished envs, compacted into `slots` places (the rest
-            # point past the row's end and are dropped when scattered back)
-            index = jax.vmap(lambda d: jnp.nonzero(d, size=slots, fill_value=per_row)[0])(
-                done.reshape(rows, per_row)
-            )
-            keys = _rows(nxt.key, rows)
-            picked = jax.vmap(lambda k, i: k[jnp.minimum(i, per_row - 1)])(keys, index)
+        if slots == 0:
+            return jax.lax.cond(jnp.any(done), reset_all, lambda s: s, nxt)
+        # each device row's finished envs, in order, in chunks of `slots` places (the
+        # places past a row's last finished env point past the row's end and are dropped
+        # when scattered back); a chunk a loop iteration, one copy of the fresh starts
+        chunks = -(-per_row // slots)
+        index = jax.vmap(lambda d: jnp.nonzero(d, size=chunks * slots, fill_value=per_row)[0])(
+            done.reshape(rows, per_row)
+        )
+        keys = _rows(nxt.key, rows)
+        needed = -(-jnp.max(done.reshape(rows, per_row).sum(axis=1)) // slots)
+
+        def reset_chunk(c: jax.Array, state: State) -> State:
+            where = jax.lax.dynamic_slice_in_dim(index, c * slots, slots, axis=1)
+            picked = jax.vmap(lambda k, i: k[jnp.minimum(i, per_row - 1)])(keys, where)
             fresh = self.fresh_starts(picked.reshape(rows * slots, *picked.shape[2:]), params)
 
             def put(new: jax.Array, old: jax.Array) -> jax.Array:
                 new = new.reshape(rows, slots, *new.shape[1:])
                 out = jax.vmap(lambda o, i, v: o.at[i].set(v, mode="drop"))(
-                    _rows(old, rows), index, new
+                    _rows(old, rows), where, new
                 )
                 return out.reshape(old.shape)
 
-            return self._merge(nxt, done, put, fresh)
+            return self._merge(state, done, put, fresh)
 
-        if slots == 0:
-            return jax.lax.cond(jnp.any(done), reset_all, lambda s: s, nxt)
-        most = jnp.max(done.reshape(rows, per_row).sum(axis=1))
-        branch = jnp.where(most == 0, 0, jnp.where(most <= slots, 1, 2))
-        return jax.lax.switch(branch, [lambda s: s, reset_some, reset_all], nxt)
+        return jax.lax.fori_loop(0, needed, reset_chunk, nxt)
 
     def _merge(
         self,

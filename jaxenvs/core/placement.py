@@ -199,5 +199,6 @@ def spread(mesh: Mesh | None, fn: Callable[..., Any], *args: Any) -> Any:
         return place(fn(place(first), place(second), rest))
 
     # jit: inlined when the caller is traced; called eagerly, the task's constants
-    # (committed to one device) become part of one program over the mesh
+    # (committed to one device) become part of one program over the mesh. Plain jax.jit:
+    # XLA takes compiler options only on the outermost jit
     return jax.jit(run)(*args)

@@ -59,6 +59,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxenvs.actions import random_actions
 from jaxenvs.core import BatchedEnv, State
 from jaxenvs.core.placement import ENV_AXIS, check_count, check_divisible
+from jaxenvs.core.xla import jit
 
 PyTree = Any
 
@@ -265,7 +266,7 @@ def shard_jit(
     out = jax.eval_shape(fn, *example_args)
     in_shardings = tuple(tree_shardings(a, mesh, batched) for a in example_args)
     out_shardings = tree_shardings(out, mesh, batched)
-    return jax.jit(
+    return jit(
         fn,
         in_shardings=in_shardings,
         out_shardings=out_shardings,
@@ -324,7 +325,7 @@ def make_sharded_rollout(
     out = jax.eval_shape(rollout, example)
     state_sh = tree_shardings(out[0], mesh)
     reward_sh = NamedSharding(mesh, PartitionSpec(None, ENV_AXIS))
-    return jax.jit(rollout, in_shardings=(replicated(mesh),), out_shardings=(state_sh, reward_sh))
+    return jit(rollout, in_shardings=(replicated(mesh),), out_shardings=(state_sh, reward_sh))
 
 
 def make_sharded_steps(
@@ -359,7 +360,7 @@ def make_sharded_steps(
     key = jax.random.key(0)
     example = jax.ShapeDtypeStruct(key.shape, key.dtype)
     state_sh = tree_shardings(jax.eval_shape(benv.reset, example), mesh)
-    run_fn = jax.jit(
+    run_fn = jit(
         run,
         in_shardings=(state_sh, replicated(mesh)),
         out_shardings=state_sh,

@@ -22,6 +22,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxenvs.core.xla import jit
+
 
 @dataclass(frozen=True)
 class JaxPolicy:
@@ -33,7 +35,7 @@ class JaxPolicy:
     def actions(self, obs: np.ndarray) -> np.ndarray:
         """The greedy actions of a batch ``(N, obs_size)``, as ``jaxenvs eval`` computes them."""
         keys = jax.random.split(jax.random.key(0), obs.shape[0])  # unused by the greedy policy
-        return np.asarray(jax.jit(jax.vmap(self.act))(jnp.asarray(obs), keys))
+        return np.asarray(jit(jax.vmap(self.act))(jnp.asarray(obs), keys))
 
 
 def jax_policy(run_dir: str | Path, seed: int, physics: str | None = None) -> JaxPolicy:
@@ -66,7 +68,7 @@ def rollout_observations(
         _, obs = jax.lax.scan(body, benv.reset(reset_key), jax.random.split(act_key, steps))
         return obs
 
-    obs = np.asarray(jax.jit(run)(jax.random.key(seed)), np.float32)
+    obs = np.asarray(jit(run)(jax.random.key(seed)), np.float32)
     return obs.reshape(-1, obs.shape[-1])[:num_obs]
 
 

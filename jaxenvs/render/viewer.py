@@ -43,6 +43,7 @@ import mujoco
 import numpy as np
 
 from jaxenvs.core import Env, State
+from jaxenvs.core.xla import jit
 
 MODES = ("manual", "random", "policy")
 ActFn = Callable[[jax.Array, jax.Array], jax.Array]
@@ -171,14 +172,14 @@ class Player:
         if mode == "policy" and act_fn is None:
             raise ValueError("the policy mode needs act_fn")
         self.env, self.mode = env, mode
-        self._reset = jax.jit(env.reset)
-        self._step = jax.jit(env.step)
-        self._act = jax.jit(act_fn if act_fn is not None else self._random_action)
+        self._reset = jit(env.reset)
+        self._step = jit(env.step)
+        self._act = jit(act_fn if act_fn is not None else self._random_action)
         self._key = jax.random.key(seed)
         self.episodes = 0
         #: the keyboard's command of a drivable task (else ``None``)
         self.keys = CommandKeys(*env.command_range) if drivable(env) else None  # type: ignore[attr-defined]
-        self._command = jax.jit(env.with_command) if self.keys else None  # type: ignore[attr-defined]
+        self._command = jit(env.with_command) if self.keys else None  # type: ignore[attr-defined]
         self.state = self.reset()
         self.action: np.ndarray = np.zeros(env.action_shape, np.int32 if env.discrete else float)
 

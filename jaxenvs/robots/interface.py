@@ -258,20 +258,22 @@ class HostTask:
     def __init__(self, env: Any, seed: int = 0) -> None:
         import jax
 
+        from jaxenvs.core.xla import jit
+
         self.env = env
         self._extras = env.reset(jax.random.key(seed)).extras
         self._params = env.default_params
-        self._obs = jax.jit(env.observation)
-        self._act = jax.jit(env.actuator_action)
-        self._command = jax.jit(env.actuator_command)
-        self._truth_fns = jax.jit(self._of_truth)
-        self._input = jax.jit(getattr(env, "with_task_input", lambda task, value: value))
-        self._history = jax.jit(getattr(env, "with_action_history", lambda task, actions: task))
+        self._obs = jit(env.observation)
+        self._act = jit(env.actuator_action)
+        self._command = jit(env.actuator_command)
+        self._truth_fns = jit(self._of_truth)
+        self._input = jit(getattr(env, "with_task_input", lambda task, value: value))
+        self._history = jit(getattr(env, "with_action_history", lambda task, actions: task))
         #: how many of the last actions the observation holds (the task's
         #: ``action_history``; 1 for a task without one, which ignores them)
         self.action_history = int(getattr(env, "action_history", 1))
         tracking = getattr(env, "tracking_errors", None)
-        self._tracking = None if tracking is None else jax.jit(self._tracking_of(tracking))
+        self._tracking = None if tracking is None else jit(self._tracking_of(tracking))
         #: the observation needs a task state that a reset does not give (known after
         #: :meth:`warm`): the ground truth's, or a task input
         self.needs_input = False

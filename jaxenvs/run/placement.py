@@ -27,6 +27,7 @@ from jaxenvs.core.sharding import (
     under_fields,
     validate_batch,
 )
+from jaxenvs.core.xla import jit
 
 PyTree = Any
 
@@ -88,8 +89,8 @@ def shard_trainer_fns(
     state = jax.eval_shape(init, keys)
     state_sh = tree_shardings(state, mesh, env_axis_of, axis)
     metrics = jax.eval_shape(chunk, state)[1]
-    init_fn = jax.jit(init, in_shardings=(replicated(mesh),), out_shardings=state_sh)
-    chunk_fn = jax.jit(
+    init_fn = jit(init, in_shardings=(replicated(mesh),), out_shardings=state_sh)
+    chunk_fn = jit(
         chunk,
         in_shardings=(state_sh,),
         out_shardings=(state_sh, jax.tree.map(lambda _: replicated(mesh), metrics)),

@@ -41,6 +41,7 @@ from typing import Any
 import jax
 
 from jaxenvs import files
+from jaxenvs.core.xla import jit
 
 #: subdirectory of the compile-cache directory that holds exported programs.
 SUBDIR = "programs"
@@ -201,7 +202,7 @@ def _export(fn: Callable[..., Any], args: tuple[Any, ...]) -> tuple[Any, Any]:
 
 
 def _wrap(exported: Any, in_tree: Any, out_tree: Any, loaded: bool) -> Program:
-    @jax.jit
+    @jit
     def call(*args: Any) -> Any:
         leaves, tree = jax.tree.flatten(args)
         if tree != in_tree:

@@ -20,6 +20,7 @@ import jax
 from jaxenvs import registry
 from jaxenvs.agents.base import Trainer
 from jaxenvs.core import Env
+from jaxenvs.core.xla import jit
 from jaxenvs.run import compile_cache, program_cache
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.placement import run_mesh, shard_trainer_fns
@@ -93,9 +94,9 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
 
         return Programs(env, trainer, init_fn, chunk_fn, _COMPILER.submit(compile_evaluate))
     if mesh.size == 1:
-        init_fn = jax.jit(jax.vmap(trainer.init))
-        chunk_fn = jax.jit(jax.vmap(trainer.chunk))
-    evaluate = jax.jit(jax.vmap(evaluator, in_axes=(0, None)))
+        init_fn = jit(jax.vmap(trainer.init))
+        chunk_fn = jit(jax.vmap(trainer.chunk))
+    evaluate = jit(jax.vmap(evaluator, in_axes=(0, None)))
     params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), jax.eval_shape(init_fn, keys))
     future = _COMPILER.submit(lambda: evaluate.lower(params_shape, key_shape).compile())
     return Programs(env, trainer, init_fn, chunk_fn, future)

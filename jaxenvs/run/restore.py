@@ -26,6 +26,7 @@ import numpy as np
 
 from jaxenvs.agents.base import Trainer
 from jaxenvs.core import Env
+from jaxenvs.core.xla import jit
 from jaxenvs.run import checkpoint
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.results import write_policy_video
@@ -141,7 +142,7 @@ def evaluate_run(
     ``physics`` evaluates under another engine than the one it trained on."""
     resolved, env, trainer, params = restore_policy(run_dir, physics)
     k = resolved.train.seed + 1 if seed is None else seed
-    evaluate = jax.jit(jax.vmap(make_evaluator(env, trainer.act, episodes), in_axes=(0, None)))
+    evaluate = jit(jax.vmap(make_evaluator(env, trainer.act, episodes), in_axes=(0, None)))
     returns, trajectory, lengths = jax.device_get(evaluate(params, eval_key(k)))
     returns = np.asarray(returns)
     result = {

@@ -25,6 +25,7 @@ from jaxenvs import registry
 from jaxenvs.compat.gymnasium.words import Bufs, Words
 from jaxenvs.core import BatchedEnv, Env, State
 from jaxenvs.core.placement import ENV_AXIS
+from jaxenvs.core.xla import jit
 
 #: info keys every env reports besides its task metrics.
 BASE_INFO_KEYS = ("nan_actions", "diverged")
@@ -72,9 +73,9 @@ def _build_single(env: Env) -> Programs:
     return Programs(
         env=env,
         words=words,
-        reset=jax.jit(reset),
-        step=jax.jit(step, donate_argnums=0),
-        unpack=jax.jit(words.unpack),
+        reset=jit(reset),
+        step=jit(step, donate_argnums=0),
+        unpack=jit(words.unpack),
     )
 
 
@@ -149,11 +150,11 @@ def _build_vector(
     return Programs(
         env=env,
         words=words,
-        reset=jax.jit(reset),
-        step=jax.jit(step, donate_argnums=donate),
-        unpack=jax.jit(words.unpack),
+        reset=jit(reset),
+        step=jit(step, donate_argnums=donate),
+        unpack=jit(words.unpack),
         batched=task,
-        reset_masked=jax.jit(reset_masked, donate_argnums=0),
+        reset_masked=jit(reset_masked, donate_argnums=0),
     )
 
 

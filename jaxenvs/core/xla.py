@@ -1,0 +1,39 @@
+"""How jaxenvs asks XLA to compile its programs: :func:`jit`, ``jax.jit`` with
+:data:`COMPILER_OPTIONS`.
+
+On a CPU, XLA's MLIR fusion emitters (its default) cost more compile time and memory on
+our programs than its LLVM loop emitters, for the same or better speed: the options pick
+the loop emitters. XLA takes that option from jax 0.6 (the oldest the package installs
+with) to 0.10; from 0.11 it compiles with the fusion emitters only and refuses the
+option, so there the options are empty and jaxenvs compiles with XLA's defaults. They are
+per program (``jax.jit``'s ``compiler_options``), so they change no program but the ones
+compiled with them, and XLA takes them only on the outermost ``jax.jit`` (a function
+traced inside another is compiled with its caller's). Measured side by side, with the
+commands, in benchmarks/RESULTS.md ("XLA's loop emitters on a CPU"). Every program
+jaxenvs compiles goes through :func:`jit`; jit a jaxenvs env yourself with it (or pass
+``compiler_options=dict(COMPILER_OPTIONS)``) to get the same programs::
+
+    import jaxenvs.machine
+    step = jaxenvs.machine.jit(benv.step, donate_argnums=0)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from types import MappingProxyType
+from typing import Any
+
+import jax
+
+#: XLA options for every program jaxenvs compiles (read when :func:`jit` is called)
+COMPILER_OPTIONS: Mapping[str, Any] = MappingProxyType(
+    {"xla_cpu_use_fusion_emitters": False} if jax.__version_info__ < (0, 11) else {}
+)
+
+
+def jit(fun: Callable[..., Any], **kwargs: Any) -> Any:
+    """``jax.jit(fun, **kwargs)`` compiled with :data:`COMPILER_OPTIONS` (a
+    ``compiler_options`` in ``kwargs`` adds to them and wins where both set one); call
+    it outermost, as XLA takes options only there."""
+    options = {**COMPILER_OPTIONS, **(kwargs.pop("compiler_options", None) or {})}
+    return jax.jit(fun, compiler_options=options or None, **kwargs)
