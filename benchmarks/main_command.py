@@ -7,7 +7,10 @@ PPO training Gymnasium's CartPole-v1 in a process of its own until a 20-episode
 deterministic evaluation (checked every ``--sb3-check-every`` steps, inside the timed
 process) returns 500. Every time is the whole process's, from start to exit. The C engine
 without video (cold, warm) closes each round. Rows: one per process; the record's ``extra``
-holds the medians over rounds and the ratios ours / SB3.
+holds the medians over rounds and the ratios ours / SB3. ``--xla-defaults`` adds, after
+each of our commands, the same command with jaxenvs' XLA options emptied
+(``jaxenvs.core.xla.COMPILER_OPTIONS = {}``: XLA's own defaults), cold and warm
+(rows ``<which>_xla_defaults``).
 
 SB3's hyperparameters are RL Baselines3 Zoo's tuned ones for CartPole-v1 (8 envs,
 n_steps 32, batch 256, 20 epochs, gamma 0.98, GAE lambda 0.8, linearly decayed learning
@@ -41,11 +44,19 @@ EVAL_EPISODES = 20
 THRESHOLD = 500.0
 
 
-def _run(args: list[str], out: Path, cache: str) -> dict[str, Any]:
+#: the command line with jaxenvs' XLA options emptied (XLA's defaults)
+_XLA_DEFAULTS = (
+    "import sys, jaxenvs.core.xla as x; x.COMPILER_OPTIONS = {}; "
+    "from jaxenvs.cli import main; sys.exit(main(sys.argv[1:]))"
+)
+
+
+def _run(args: list[str], out: Path, cache: str, xla_defaults: bool = False) -> dict[str, Any]:
     env = {**os.environ, "JAXENVS_CACHE_DIR": cache}
     start = time.perf_counter()
+    program = ["-c", _XLA_DEFAULTS] if xla_defaults else ["-m", "jaxenvs"]
     subprocess.run(
-        [sys.executable, "-m", "jaxenvs", *args, "--out", str(out), "--quiet"],
+        [sys.executable, *program, *args, "--out", str(out), "--quiet"],
         check=True,
         env=env,
         timeout=900,
@@ -130,6 +141,7 @@ def main() -> None:
     parser.add_argument("--sb3-max-steps", type=int, default=300_000)
     parser.add_argument("--sb3-check-every", type=int, default=10_000)
     parser.add_argument("--sb3-job", nargs=3, type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--xla-defaults", action="store_true", help="also with XLA's defaults")
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
     if args.sb3_job:
@@ -138,13 +150,15 @@ def main() -> None:
     rows, loads = [], [_load()]
     for k in range(args.rounds):
         for name, command in COMMANDS:
-            with tempfile.TemporaryDirectory() as tmp:
-                cache = str(Path(tmp) / "cache")
-                for i in range(2):
-                    row = _run(command, Path(tmp) / f"run{i}", cache)
-                    head = {"command": "jaxenvs " + " ".join(command), "which": name, "run": i}
-                    rows.append({**head, **row, "round": k})
-                    print(rows[-1], flush=True)
+            for defaults in (False, True) if args.xla_defaults else (False,):
+                which = f"{name}_xla_defaults" if defaults else name
+                with tempfile.TemporaryDirectory() as tmp:
+                    cache = str(Path(tmp) / "cache")
+                    for i in range(2):
+                        row = _run(command, Path(tmp) / f"run{i}", cache, defaults)
+                        head = {"command": "jaxenvs " + " ".join(command), "which": which}
+                        rows.append({**head, "run": i, **row, "round": k})
+                        print(rows[-1], flush=True)
             if name == "main":
                 row = _run_sb3(k, args.sb3_max_steps, args.sb3_check_every)
                 rows.append({"command": SB3_COMMAND, "which": "sb3", "run": 0, **row, "round": k})

@@ -127,8 +127,9 @@ def _prepare(
         )
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     params_fn = jax.vmap(programs.trainer.policy_params)
-    template = jax.eval_shape(programs.init_fn, keys)
-    metric_shapes = jax.eval_shape(programs.chunk_fn, template)[1]
+    # the programs' own eval_shape: XLA options (jaxenvs.core.xla) refuse a nested trace
+    template = programs.init_fn.eval_shape(keys)
+    metric_shapes = programs.chunk_fn.eval_shape(template)[1]
     columns = metric_columns(metric_shapes)
     return _Run(resolved, out, programs, params_fn, keys, template, columns, say)
 

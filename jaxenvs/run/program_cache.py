@@ -115,10 +115,12 @@ def program_key(name: str, config: Mapping[str, Any], args: tuple[Any, ...]) -> 
 class Program:
     """A loaded or freshly exported program.
 
-    ``call`` takes and returns the same pytrees as the original function; ``jitted`` is
-    the jitted function behind it (``.lower(...).compile()`` works on it); ``out_shape``
-    is the output as ``jax.ShapeDtypeStruct`` leaves; ``loaded`` says whether it came
-    from disk.
+    ``call`` (or calling the program) takes and returns the same pytrees as the original
+    function; ``jitted`` is the jitted function behind it (``.lower(...).compile()``
+    works on it); ``out_shape`` is the output as ``jax.ShapeDtypeStruct`` leaves;
+    ``loaded`` says whether it came from disk. ``jitted`` is compiled with jaxenvs' XLA
+    options, which XLA takes only on an outermost ``jit``: call the program outside any
+    trace, and ask :meth:`eval_shape` (not ``jax.eval_shape``) for its output's shapes.
     """
 
     jitted: Any
@@ -130,6 +132,13 @@ class Program:
         jitted function's output) are made strong first: the module's inputs are, and a
         weak input would make ``jit`` trace and compile the program a second time."""
         return self.jitted(*jax.tree.map(_strong, args))
+
+    def __call__(self, *args: Any) -> Any:
+        return self.call(*args)
+
+    def eval_shape(self, *args: Any) -> Any:
+        """The output's shapes for ``args`` (arrays or ``jax.ShapeDtypeStruct``s)."""
+        return self.jitted.eval_shape(*args)
 
 
 def _strong(x: Any) -> Any:

@@ -82,8 +82,8 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
         # (~0.5 s of tracing init). init runs through the store too: a state made by a
         # plain jit would reach the chunk with other input shardings and compile it twice
         template = jax.eval_shape(jax.vmap(trainer.init), keys)
-        init_fn = store(jax.vmap(trainer.init), (keys,), "init", (template,)).call
-        chunk_fn = store(jax.vmap(trainer.chunk), (template,), "chunk", (template,)).call
+        init_fn = store(jax.vmap(trainer.init), (keys,), "init", (template,))
+        chunk_fn = store(jax.vmap(trainer.chunk), (template,), "chunk", (template,))
         params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), template)
         env_state = jax.eval_shape(env.reset, jax.random.key(0))  # the trajectory's structure
 
@@ -97,7 +97,7 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
         init_fn = jit(jax.vmap(trainer.init))
         chunk_fn = jit(jax.vmap(trainer.chunk))
     evaluate = jit(jax.vmap(evaluator, in_axes=(0, None)))
-    params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), jax.eval_shape(init_fn, keys))
+    params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), init_fn.eval_shape(keys))
     future = _COMPILER.submit(lambda: evaluate.lower(params_shape, key_shape).compile())
     return Programs(env, trainer, init_fn, chunk_fn, future)
 
