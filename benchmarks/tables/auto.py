@@ -176,12 +176,14 @@ def _sweep_files(machine: str) -> tuple[str, ...]:
 
 
 TABLES = {
+    "engines-sweep-cpu16-chunks": Table(_sweep_files("cpu16chunks"), engines_sweep),
     "engines-sweep-cpu16-compact": Table(_sweep_files("cpu16compact"), engines_sweep),
     "engines-cpu16-device-count-compact": Table(
         ("engines_cpu16_device_count_compact",), device_count
     ),
     "auto-reset-ab": Table(("auto_reset_ab_cpu16", "auto_reset_ab_cpu2"), reset_ab),
     "engines-sweep-cpu16-fields": Table(_sweep_files("cpu16fields"), engines_sweep),
+    "engines-sweep-cpu2-emitters": Table(_sweep_files("cpu2emitters")[:2], engines_sweep),
     "engines-sweep-cpu2-fields": Table(_sweep_files("cpu2fields"), engines_sweep),
     "engines-cpu16-device-count": Table(("engines_cpu16_device_count",), device_count),
     "engines-sweep-cpu16": Table(_sweep_files("cpu16"), engines_sweep_before),
@@ -192,5 +194,7 @@ TABLES = {
     "c-memory-cpu2": Table(("c_memory_cpu2",), c_memory),
     "c-memory-cpu2-emitters": Table(("c_memory_cpu2_emitters",), c_memory),
     "emitters-ab-cpu2": Table(("compiler_options_ab_cpu2",), emitters_ab),
-    "auto-reset-ab-chunks": Table(("auto_reset_ab_cpu2chunks",), reset_ab),
+    "auto-reset-ab-chunks": Table(
+        ("auto_reset_ab_cpu16chunks", "auto_reset_ab_cpu2chunks"), reset_ab
+    ),
 }

@@ -11,8 +11,9 @@ def main_command(recs: list[Rec]) -> Cells:
     def cells(r: Row) -> list[str]:
         sb3 = r["which"] == "sb3"
         ret = r["eval_mean_return"]
+        xla = ", XLA's defaults" if r["which"].endswith("_xla_defaults") else ""
         return [
-            f"`{r['command']}`" if not sb3 else r["command"],
+            f"`{r['command']}`{xla}" if not sb3 else r["command"],
             str(r.get("round", 0)),
             "-" if sb3 else "cold" if r["run"] == 0 else "warm",
             secs(r["whole_command_s"]),
@@ -36,6 +37,10 @@ def main_command_ratios(recs: list[Rec]) -> Cells:
         "main_1": ("`jaxenvs train CartPole-v0 --algo ppo`, warm", "<= 0.12x"),
         "c_no_video_0": ("the same, `--physics c --no-video`, cold", ""),
         "c_no_video_1": ("the same, `--physics c --no-video`, warm", ""),
+        "main_xla_defaults_0": ("the main command with XLA's default emitters, cold", ""),
+        "main_xla_defaults_1": ("the main command with XLA's default emitters, warm", ""),
+        "c_no_video_xla_defaults_0": ("`--physics c --no-video`, XLA's defaults, cold", ""),
+        "c_no_video_xla_defaults_1": ("`--physics c --no-video`, XLA's defaults, warm", ""),
         "sb3_0": ("SB3 PPO, CartPole-v1 to a greedy 500", ""),
     }
     rows = [["run", "median whole process", "/ SB3", "target"]]
@@ -48,4 +53,7 @@ def main_command_ratios(recs: list[Rec]) -> Cells:
 TABLES = {
     "main-command-cpu2": Table(("main_command_cpu2",), main_command),
     "main-command-ratios-cpu2": Table(("main_command_cpu2",), main_command_ratios),
+    "main-command-ratios-emitters-cpu2": Table(
+        ("main_command_cpu2_emitters",), main_command_ratios
+    ),
 }
