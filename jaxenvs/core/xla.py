@@ -10,8 +10,10 @@ per program (``jax.jit``'s ``compiler_options``), so they change no program but 
 compiled with them, and XLA takes them only on the outermost ``jax.jit`` (a function
 traced inside another is compiled with its caller's). Measured side by side, with the
 commands, in benchmarks/RESULTS.md ("XLA's loop emitters on a CPU"). Every program
-jaxenvs compiles goes through :func:`jit`; jit a jaxenvs env yourself with it (or pass
-``compiler_options=dict(COMPILER_OPTIONS)``) to get the same programs::
+jaxenvs compiles goes through :func:`jit`, but for a batch spread over several devices
+whose ``reset`` or ``step`` is called outside any ``jit`` (its own plain ``jax.jit``,
+which is meant to be traced inside its caller's); jit a jaxenvs env yourself with it (or
+pass ``compiler_options=dict(COMPILER_OPTIONS)``) to get the same programs::
 
     import jaxenvs.machine
     step = jaxenvs.machine.jit(benv.step, donate_argnums=0)
