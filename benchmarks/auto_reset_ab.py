@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 
 import results_io
@@ -58,18 +57,15 @@ def main() -> None:
             f"{r['env_steps_per_s']:>12,.0f} devices={r.get('devices')}"
         )
     if args.json:
-        flags = os.environ.get("XLA_FLAGS", "")
-        command = ["JAX_PLATFORMS=cpu", *([f"XLA_FLAGS={flags}"] if flags else [])]
-        command += ["python", "benchmarks/auto_reset_ab.py", f"'{args.plan}'"]
-        rec = results_io.record(
-            os.path.basename(args.json),
+        results_io.write_plan_run(
+            args.json,
             "The compact auto-reset against resetting the whole batch, one process",
+            "auto_reset_ab.py",
+            args.plan,
             results,
-            description=args.description,
+            args.description,
             extra={"machine": bench.machine()},
-            argv=command,
         )
-        results_io.write(args.json, rec)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from types import MappingProxyType
 
@@ -69,21 +68,16 @@ def main() -> None:
             f"{r['env_steps_per_s']:>12,.0f}  compile {r['compile_s']:.2f} s"
         )
     if args.json:
-        flags = os.environ.get("XLA_FLAGS", "")
-        command = ["JAX_PLATFORMS=cpu", *([f"XLA_FLAGS={flags}"] if flags else [])]
-        command += ["python", "benchmarks/compiler_options_ab.py", f"'{args.plan}'"]
-        rec = results_io.record(
-            os.path.basename(args.json),
+        variants = {k: dict(v) for k, v in VARIANTS.items()}
+        results_io.write_plan_run(
+            args.json,
             "XLA's loop emitters against its fusion emitters on a CPU, one process",
+            "compiler_options_ab.py",
+            args.plan,
             results,
-            description=args.description,
-            extra={
-                "machine": bench.machine(),
-                "variants": {k: dict(v) for k, v in VARIANTS.items()},
-            },
-            argv=command,
+            args.description,
+            extra={"machine": bench.machine(), "variants": variants},
         )
-        results_io.write(args.json, rec)
 
 
 if __name__ == "__main__":

@@ -195,6 +195,25 @@ def write(path: str | Path, rec: dict[str, Any]) -> Path:
     return p
 
 
+def write_plan_run(
+    path: str,
+    title: str,
+    script: str,
+    plan: str,
+    rows: list[dict[str, Any]],
+    description: str = "",
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``rows`` that ``benchmarks/SCRIPT 'PLAN'`` measured in this process on the
+    CPU; the recorded command carries the ``XLA_FLAGS`` it ran under (its host devices)."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    command = ["JAX_PLATFORMS=cpu", *([f"XLA_FLAGS={flags}"] if flags else [])]
+    command += ["python", f"benchmarks/{script}", f"'{plan}'"]
+    name = os.path.basename(path)
+    rec = record(name, title, rows, description=description, extra=extra, argv=command)
+    return write(path, rec)
+
+
 def _jsonable(x: Any) -> Any:
     if hasattr(x, "tolist"):  # numpy scalars and arrays
         return x.tolist()

@@ -98,23 +98,25 @@ def reset_ab(recs: list[Rec]) -> Cells:
                 continue
             kind, _, engine = r["variant"].partition("_")
             got[(r["task"], engine or "c", r["num_envs"], kind)] = r
-        for task, engine, n in sorted({k[:3] for k in got}):
-            a, b = got.get((task, engine, n, "compact")), got.get((task, engine, n, "whole"))
-            if a is None or b is None:
-                continue
-            ratio = a["env_steps_per_s"] / b["env_steps_per_s"]
-            cells.append(
-                [
-                    task,
-                    engine,
-                    f"{n:,}",
-                    rate(a["env_steps_per_s"]),
-                    rate(b["env_steps_per_s"]),
-                    f"{ratio:.2f}",
-                    str(a.get("devices")),
-                ]
-            )
+        for head, a, _ in _pairs(got, "compact", "whole"):
+            cells.append([*head, str(a.get("devices"))])
     return cells
+
+
+def _pairs(
+    got: dict[tuple[str, str, int, str], dict[str, Any]], first: str, second: str
+) -> list[tuple[list[str], dict[str, Any], dict[str, Any]]]:
+    """For each (task, engine, envs) of ``got`` (keyed by those and a variant) measured as
+    both ``first`` and ``second``: the cells task, engine, envs, both throughputs and their
+    ratio, and the two rows."""
+    out = []
+    for task, engine, n in sorted({k[:3] for k in got}):
+        a, b = got.get((task, engine, n, first)), got.get((task, engine, n, second))
+        if a is None or b is None:
+            continue
+        fa, fb = a["env_steps_per_s"], b["env_steps_per_s"]
+        out.append(([task, engine, f"{n:,}", rate(fa), rate(fb), f"{fa / fb:.2f}"], a, b))
+    return out
 
 
 def c_costs(recs: list[Rec]) -> Cells:
@@ -157,15 +159,8 @@ def emitters_ab(recs: list[Rec]) -> Cells:
     cells[0] += ["compile, loop", "compile, fusion"]
     for rec in recs:
         got = {(r["task"], r["physics"], r["num_envs"], r["variant"]): r for r in rows(rec)}
-        for task, engine, n in sorted({k[:3] for k in got}):
-            a, b = got.get((task, engine, n, "loop")), got.get((task, engine, n, "fusion"))
-            if a is None or b is None:
-                continue
-            ratio = a["env_steps_per_s"] / b["env_steps_per_s"]
-            cells.append(
-                [task, engine, f"{n:,}", rate(a["env_steps_per_s"]), rate(b["env_steps_per_s"])]
-                + [f"{ratio:.2f}", secs(a["compile_s"]), secs(b["compile_s"])]
-            )
+        for head, a, b in _pairs(got, "loop", "fusion"):
+            cells.append([*head, secs(a["compile_s"]), secs(b["compile_s"])])
     return cells
 
 
