@@ -141,7 +141,8 @@ class BatchedEnv:
 
         def reset_all(nxt: State) -> State:
             fresh = self.fresh_starts(nxt.key, params)
-            return self._merge(nxt, done, lambda new, old: _where(done, new, old), fresh)
+            merged = self._merge(nxt, lambda new, old: _where(done, new, old), fresh)
+            return _zero_counters(merged, done)
 
         if slots == 0:
             return jax.lax.cond(jnp.any(done), reset_all, lambda s: s, nxt)
@@ -149,11 +150,12 @@ class BatchedEnv:
         # places past a row's last finished env point past the row's end and are dropped
         # when scattered back); a chunk a loop iteration, one copy of the fresh starts
         chunks = -(-per_row // slots)
+        by_row = _rows(done, rows)
         index = jax.vmap(lambda d: jnp.nonzero(d, size=chunks * slots, fill_value=per_row)[0])(
-            done.reshape(rows, per_row)
+            by_row
         )
         keys = _rows(nxt.key, rows)
-        needed = -(-jnp.max(done.reshape(rows, per_row).sum(axis=1)) // slots)
+        needed = -(-jnp.max(by_row.sum(axis=1)) // slots)
 
         def reset_chunk(c: jax.Array, state: State) -> State:
             where = jax.lax.dynamic_slice_in_dim(index, c * slots, slots, axis=1)
@@ -167,31 +169,22 @@ class BatchedEnv:
                 )
                 return out.reshape(old.shape)
 
-            return self._merge(state, done, put, fresh)
+            return self._merge(state, put, fresh)
 
-        return jax.lax.fori_loop(0, needed, reset_chunk, nxt)
+        return _zero_counters(jax.lax.fori_loop(0, needed, reset_chunk, nxt), done)
 
     def _merge(
-        self,
-        nxt: State,
-        done: jax.Array,
-        put: Callable[[jax.Array, jax.Array], jax.Array],
-        fresh: State,
+        self, nxt: State, put: Callable[[jax.Array, jax.Array], jax.Array], fresh: State
     ) -> State:
         """``nxt`` with its finished envs' starts taken from ``fresh`` by
-        ``put(fresh_leaf, old_leaf)``, and their episode counters zeroed."""
+        ``put(fresh_leaf, old_leaf)`` (their episode counters: :func:`_zero_counters`)."""
         obs, extras, time, key, new_params = jax.tree.map(
             put,
             (fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
             (nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
         )
         data = self.env.sim.select_data(put, fresh.data, nxt.data)
-        info = dict(nxt.info)
-        info["episode_return"] = jnp.where(done, 0.0, nxt.info["episode_return"])
-        info["episode_length"] = jnp.where(done, 0, nxt.info["episode_length"])
-        return nxt.replace(
-            data=data, obs=obs, extras=extras, time=time, key=key, params=new_params, info=info
-        )
+        return nxt.replace(data=data, obs=obs, extras=extras, time=time, key=key, params=new_params)
 
     def __repr__(self) -> str:
         return f"BatchedEnv({self.env!r}, num_envs={self.num_envs}, devices={self.devices})"
@@ -211,6 +204,14 @@ def reset_slots(per_device: int, platform: str = "cpu") -> int:
     if platform != "cpu" or per_device < COMPACT_RESET_FROM:
         return 0
     return per_device // 8
+
+
+def _zero_counters(state: State, done: jax.Array) -> State:
+    """``state`` with the episode counters of the ``done`` envs zeroed."""
+    info = dict(state.info)
+    info["episode_return"] = jnp.where(done, 0.0, state.info["episode_return"])
+    info["episode_length"] = jnp.where(done, 0, state.info["episode_length"])
+    return state.replace(info=info)
 
 
 def _where(done: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
