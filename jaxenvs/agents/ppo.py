@@ -466,8 +466,8 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig) -> Trainer:
     config.validate()
     single: Env = env.env if isinstance(env, BatchedEnv) else env
     # one device here: the runner spreads the whole training state (jaxenvs.core.sharding)
-    # the runner vmaps the chunk over seeds, under which a compact reset's switch would
-    # compute all its branches (BatchedEnv, "What a step resets")
+    # the runner vmaps the chunk over seeds, under which a compact reset's loop would run
+    # every seed through the most chunks any needs (BatchedEnv, "What a step resets")
     benv = BatchedEnv(
         single, config.num_envs, randomize=config.randomize, devices=1, compact_reset=False
     )

@@ -336,7 +336,7 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
     disc = make_discretiser(low, high, config.number_splits)
     num_actions = env.action_size
     # one device here: the runner spreads the whole training state (jaxenvs.core.sharding)
-    # vmapped over seeds: a compact reset's switch would compute all its branches there
+    # vmapped over seeds: a compact reset's loop would run the most chunks any seed needs
     benv = BatchedEnv(env, config.num_envs, devices=1, compact_reset=False)
     n = config.num_envs
     gamma, alpha = config.gamma, config.alpha
