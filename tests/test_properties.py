@@ -8,6 +8,7 @@ pure-Python properties get more examples than the jitted ones.
 from __future__ import annotations
 
 import dataclasses
+import typing
 
 import jax
 import numpy as np
@@ -211,8 +212,9 @@ def test_any_value_is_accepted_typed_or_refused_by_name(key, value):
     assert _json_type_fits(value, default), (key, value)
     got = getattr(new, key)
     assert type(got) is type(default) or (isinstance(default, float) and type(got) is float)
-    if isinstance(default, tuple):
-        assert all(type(x) is int for x in got)
+    if isinstance(default, tuple):  # tuple[int, ...] or tuple[str, ...]: elements of it
+        (element, _) = typing.get_args(typing.get_type_hints(ppo.PPOConfig)[key])
+        assert all(type(x) is element for x in got), (key, got)
     new.validate()
 
 
