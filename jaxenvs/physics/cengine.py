@@ -3,10 +3,11 @@
 A task's ``reset``/``step`` stay the same pure JAX functions over an ``mjx.Data``; only the
 physics step changes. Each control step is one call out of the compiled program into
 MuJoCo's batched C API (``mujoco/mjbatch.h``): every env of the batch is stepped on its own
-from the full state it holds (``mj_step`` per substep, float64), on a pool of threads in
-native code. From JAX's side it is a pure function: ``jit``, nested ``vmap`` (the call sees
-every batch axis at once), ``lax.scan``, the auto-reset, sharding and domain randomisation
-work, and the same inputs give the same outputs bit for bit at any thread count.
+from the full state it holds (``mj_step`` per substep, float64), by the calling thread and
+tasks on XLA's own CPU thread pool. From JAX's side it is a pure function: ``jit``, nested
+``vmap`` (the call sees every batch axis at once), ``lax.scan``, the auto-reset, sharding
+and domain randomisation work, and the same inputs give the same outputs bit for bit at
+any thread count.
 
 **Two paths, one result.** The call is the native engine (:mod:`jaxenvs.physics.native`: an XLA FFI
 custom call, no Python and no GIL per step, and nothing process-specific in the compiled
@@ -49,8 +50,9 @@ model's step. Native calls turn that default clock off (``engine.cc``); a clock 
 with ``mujoco.set_mjcb_time(fn)`` is kept.
 
 **Params.** ``sim.model_with(fields)`` names model fields by their MuJoCo names
-(``body_mass``, ``actuator_gear``, ...). Their values travel with each call, per env, into
-per-simulation model fields of the batch: memory grows with threads, not with envs.
+(``body_mass``, ``actuator_gear``, ...). Their values travel with each call, per env, and
+are written into the stepping thread's model copy before that env's step: memory grows
+with threads, not with envs.
 """
 
 from __future__ import annotations

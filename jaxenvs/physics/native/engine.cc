@@ -7,7 +7,8 @@
 // Contract of the FFI target "jaxenvs_mj_step":
 //   attributes  model    the key a model was registered under (jaxenvs_register_model)
 //               substeps mj_step calls with the controls held; 0: one mj_forward
-//               threads  threads of the batch's pool (the caller's included)
+//               threads  the most threads that step the batch: the caller's and tasks
+//                        on XLA's intra-op thread pool (the call starts no thread)
 //               serial_work  below this many (sims x substeps x dofs) one thread steps all
 //               inputs   comma-separated mjData fields read, in argument order ("time",
 //                        "qpos", ...: the state a step reads)
@@ -17,12 +18,13 @@
 //   arguments   one buffer per input then per param, each (batch..., field size) with the
 //               same leading batch dims; float32 or float64 (eq_active: bool)
 //   results     one buffer per output, (batch..., field size), float32 or float64
-// Every simulation is stepped on its own (MuJoCo's mjBatch: per-thread mjData, per-
-// simulation model fields), so results are the same bit for bit at any thread count.
-// Derived outputs are zeroed before the step, so a field this step does not compute is 0
-// (as in a fresh mjx.Data), never another simulation's value. A simulation that raised a
-// bad-state warning (MuJoCo resets such a state and carries on) or an error comes back
-// with every output NaN but time.
+// Every simulation is stepped on its own, from its own inputs and model fields, in an
+// mjData of one of MuJoCo's one-thread batches (mjBatch, which traps MuJoCo's errors), a
+// range of simulations after another; so results are the same bit for bit at any thread
+// count. Derived outputs are zeroed before the step, so a field this step does not
+// compute is 0 (as in a fresh mjx.Data), never another simulation's value. A simulation
+// that raised a bad-state warning (MuJoCo resets such a state and carries on) or an error
+// comes back with every output NaN but time, which advances as the step would have.
 
 #include <mujoco/mjbatch.h>
 #include <mujoco/mjxmacro.h>
@@ -41,6 +43,7 @@
 #include <set>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <type_traits>
 #include <vector>
 
@@ -108,6 +111,7 @@ struct Plan {
   std::vector<std::string> params;
   std::vector<int64_t> param_sizes;
   std::vector<const DataField*> zeroed;  // derived outputs, cleared before a step
+  int input_spec = 0;                    // the mjtState components the inputs set
 };
 
 std::vector<std::string> Split(std::string_view s) {
@@ -121,11 +125,48 @@ std::vector<std::string> Split(std::string_view s) {
   return out;
 }
 
-const std::set<std::string>& StateFields() {
-  static const auto* fields = new std::set<std::string>{
-      "time", "qpos", "qvel", "act", "qacc_warmstart", "ctrl", "qfrc_applied",
-      "xfrc_applied", "eq_active", "mocap_pos", "mocap_quat", "userdata"};
+// the state fields a step reads, each with the mjtState component it is
+const std::map<std::string, int>& StateFields() {
+  static const auto* fields = new std::map<std::string, int>{
+      {"time", mjSTATE_TIME},
+      {"qpos", mjSTATE_QPOS},
+      {"qvel", mjSTATE_QVEL},
+      {"act", mjSTATE_ACT},
+      {"qacc_warmstart", mjSTATE_WARMSTART},
+      {"ctrl", mjSTATE_CTRL},
+      {"qfrc_applied", mjSTATE_QFRC_APPLIED},
+      {"xfrc_applied", mjSTATE_XFRC_APPLIED},
+      {"eq_active", mjSTATE_EQ_ACTIVE},
+      {"mocap_pos", mjSTATE_MOCAP_POS},
+      {"mocap_quat", mjSTATE_MOCAP_QUAT},
+      {"userdata", mjSTATE_USERDATA}};
   return *fields;
+}
+
+struct ModelField {
+  int64_t offset = -1;  // of the pointer member in mjModel; -1: no such array
+  int64_t size = 0;     // elements
+  bool is_num = false;  // mjtNum
+};
+
+// model array name of m
+ModelField FindModelField(const mjModel* m, std::string_view name) {
+  MJMODEL_POINTERS_PREAMBLE(m)
+#define X(type, field, nr, nc)                                                  \
+  if (name == #field) {                                                         \
+    return ModelField{static_cast<int64_t>(offsetof(mjModel, field)),           \
+                      static_cast<int64_t>(m->nr) * static_cast<int64_t>(nc),   \
+                      std::is_same<type, mjtNum>::value};                       \
+  }
+#define XNV X
+  MJMODEL_POINTERS
+#undef XNV
+#undef X
+  return ModelField{};
+}
+
+mjtNum* ModelArray(const mjModel* m, int64_t offset) {
+  return *reinterpret_cast<mjtNum* const*>(reinterpret_cast<const char*>(m) + offset);
 }
 
 // ------------------------------------------------------------------ conversions
@@ -166,53 +207,52 @@ ffi::Error Fail(const std::string& message) {
 
 // ------------------------------------------------------------------ engines
 
-struct Pool {  // one mjBatch of a thread count, grown to the largest batch seen
+// One simulation's MuJoCo batch (one thread: the caller's), which steps a range of a
+// call's envs one after another in its mjData (RunRange). MuJoCo's batch loads a state
+// (mj_setState) and sets its error trap once per range, not once per env.
+struct Sim {
   mjBatch* batch = nullptr;
-  int nsim = 0;
-  std::set<std::string> expanded;
+  // per-env model fields this batch's model holds values of (offset -> size), put back to
+  // the model's values when a call does not give them
+  std::map<int64_t, int64_t> written;
 };
 
 struct Engine {
   mjModel* model = nullptr;
-  // guards the maps below; a call holds it only to look up its plan and take a pool, so
-  // calls from several devices at once each step on a pool of their own
+  // guards the members below; a range holds it only to look up a plan or take a Sim, so
+  // ranges of one call, and calls from several devices, step on Sims of their own
   std::mutex mu;
-  std::map<int, std::vector<std::unique_ptr<Pool>>> idle;  // free pools by thread count
+  std::vector<std::unique_ptr<Sim>> idle;  // free Sims
   std::map<std::string, Plan> plans;
-  std::map<std::string, std::vector<mjtNum>> defaults;  // model values of params fields
   ~Engine() {
-    for (auto& [n, pools] : idle) {
-      for (auto& pool : pools) {
-        if (pool->batch) mjb_deleteBatch(pool->batch);
-      }
+    for (auto& sim : idle) {
+      if (sim->batch) mjb_deleteBatch(sim->batch);
     }
     if (model) mj_deleteModel(model);
   }
 };
 
-// A pool of nthread threads for one call, returned to the engine when the call ends.
-class PoolLease {
+// A Sim for one range, given back to the engine when the range is done.
+class SimLease {
  public:
-  PoolLease(Engine* e, int nthread) : e_(e), nthread_(nthread) {
+  explicit SimLease(Engine* e) : e_(e) {
     std::lock_guard<std::mutex> lock(e->mu);
-    auto& pools = e->idle[nthread];
-    if (pools.empty()) {
-      pool_ = std::make_unique<Pool>();
+    if (e->idle.empty()) {
+      sim_ = std::make_unique<Sim>();
     } else {
-      pool_ = std::move(pools.back());
-      pools.pop_back();
+      sim_ = std::move(e->idle.back());
+      e->idle.pop_back();
     }
   }
-  ~PoolLease() {
+  ~SimLease() {
     std::lock_guard<std::mutex> lock(e_->mu);
-    e_->idle[nthread_].push_back(std::move(pool_));
+    e_->idle.push_back(std::move(sim_));
   }
-  Pool& operator*() { return *pool_; }
+  Sim& operator*() { return *sim_; }
 
  private:
   Engine* e_;
-  int nthread_;
-  std::unique_ptr<Pool> pool_;
+  std::unique_ptr<Sim> sim_;
 };
 
 std::mutex registry_mu;
@@ -265,6 +305,7 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
   for (const std::string& name : Split(inputs)) {
     auto s = slot(name, true);
     if (s.has_error()) return ffi::Unexpected(s.error());
+    plan.input_spec |= StateFields().at(name);
     plan.inputs.push_back(*s);
   }
   for (const std::string& name : Split(outputs)) {
@@ -323,13 +364,24 @@ Engine* CachedEngine(std::string_view model) {
 
 // ------------------------------------------------------------------ one simulation
 
+struct ParamSlot {  // one per-env model field of a call
+  int64_t offset;    // of its pointer in mjModel (FindModelField)
+  int64_t size;      // values per env
+  const void* src;   // (envs, size)
+  ffi::DataType type;
+};
+
 struct CallArgs {
+  Engine* engine;
   const Plan* plan;
   int substeps;
+  double timestep;  // the model's
   std::vector<const void*> in;
   std::vector<ffi::DataType> in_type;
   std::vector<void*> out;
   std::vector<ffi::DataType> out_type;
+  std::vector<ParamSlot> params;
+  int restore = 0;  // mjtState components put back before each env (Range::snapshot)
 };
 
 // warnings that mean a step went wrong; MuJoCo resets a bad state (zeroing every counter)
@@ -337,16 +389,25 @@ struct CallArgs {
 constexpr int kBadWarnings[] = {mjWARN_CONTACTFULL, mjWARN_CNSTRFULL, mjWARN_BADQPOS,
                                 mjWARN_BADQVEL, mjWARN_BADQACC, mjWARN_BADCTRL};
 
-void WriteNaN(const CallArgs& a, int sim) {
+// A failed step's outputs: every field NaN but time, which advances as a step would have.
+void WriteNaN(const CallArgs& a, int64_t sim) {
+  double time = 0;
+  for (size_t k = 0; k < a.plan->inputs.size(); ++k) {
+    if (a.plan->inputs[k].kind == Kind::kTime) Load(a.in[k], a.in_type[k], sim, &time, 1);
+  }
+  time += a.substeps * a.timestep;
   for (size_t k = 0; k < a.plan->outputs.size(); ++k) {
     const Slot& s = a.plan->outputs[k];
-    if (s.kind == Kind::kTime) continue;
-    StoreNaN(a.out[k], a.out_type[k], sim * s.size, s.size);
+    if (s.kind == Kind::kTime) {
+      Store(&time, a.out[k], a.out_type[k], sim, 1);
+    } else {
+      StoreNaN(a.out[k], a.out_type[k], sim * s.size, s.size);
+    }
   }
 }
 
-void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
-  const CallArgs& a = *static_cast<const CallArgs*>(arg);
+// Step env sim in d, from its inputs, and write its outputs.
+void RunOne(const mjModel* m, mjData* d, int64_t sim, const CallArgs& a) {
   const Plan& plan = *a.plan;
   // the state this simulation starts from
   for (size_t k = 0; k < plan.inputs.size(); ++k) {
@@ -366,7 +427,6 @@ void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
   }
   // counters start at 1 so that MuJoCo does not print (it prints a warning's first time)
   for (int w : kBadWarnings) d->warning[w].number = 1;
-  double time0 = d->time;
   if (a.substeps == 0) {
     mj_forward(m, d);
   } else {
@@ -374,13 +434,14 @@ void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
   }
   bool bad = false;  // a warning raised (counter above 1) or a reset (counters zeroed)
   for (int w : kBadWarnings) bad |= d->warning[w].number != 1;
+  if (bad) {
+    WriteNaN(a, sim);
+    return;
+  }
   for (size_t k = 0; k < plan.outputs.size(); ++k) {
     const Slot& s = plan.outputs[k];
     if (s.kind == Kind::kTime) {
-      double t = bad ? time0 + a.substeps * m->opt.timestep : d->time;
-      Store(&t, a.out[k], a.out_type[k], sim, 1);
-    } else if (bad) {
-      StoreNaN(a.out[k], a.out_type[k], sim * s.size, s.size);
+      Store(&d->time, a.out[k], a.out_type[k], sim, 1);
     } else if (s.kind == Kind::kDenseMoment) {
       // MJX holds actuator_moment dense (nu x nv); MuJoCo as compressed rows
       std::vector<mjtNum> dense(s.size, 0.0);
@@ -395,6 +456,106 @@ void RunOne(const mjModel* m, mjData* d, int sim, void* arg) {
     } else {
       Store(FieldPtr<mjtNum>(d, *s.field), a.out[k], a.out_type[k], sim * s.size, s.size);
     }
+  }
+}
+
+// ------------------------------------------------------------------ ranges of envs
+
+// ranges a worker thread's share of a call is cut into: a few, so that threads whose envs
+// step faster take over the ranges of slower ones
+constexpr int64_t kRangesPerWorker = 4;
+
+struct alignas(64) Range {  // envs [begin, end) of a call, stepped in turn in one mjData
+  // the env being stepped, or the next: where an error stopped (atomic: stored before
+  // each step, for the caller of mjb_apply to read after an error left RunRange)
+  std::atomic<int64_t> begin{0};
+  int64_t end = 0;
+  std::vector<mjtNum> snapshot;  // the state components no input sets (CallArgs::restore)
+  Sim* sim = nullptr;
+  const CallArgs* call = nullptr;
+};
+
+// Step range's envs one after another in d (an mjfBatchFunc; arg: the Range). Each env's
+// per-env model fields are written into m, its Sim's own model, first. Nothing here
+// needs a destructor: an error in a step leaves this function without unwinding it.
+void RunRange(const mjModel* m, mjData* d, int, void* arg) {
+  Range& range = *static_cast<Range*>(arg);
+  const CallArgs& a = *range.call;
+  const mjModel* base = a.engine->model;
+  for (auto it = range.sim->written.begin(); it != range.sim->written.end();) {
+    bool given = std::any_of(a.params.begin(), a.params.end(),
+                             [&](const ParamSlot& p) { return p.offset == it->first; });
+    if (given) {
+      ++it;
+      continue;
+    }
+    std::memcpy(ModelArray(m, it->first), ModelArray(base, it->first),
+                it->second * sizeof(mjtNum));
+    it = range.sim->written.erase(it);
+  }
+  for (const ParamSlot& p : a.params) range.sim->written[p.offset] = p.size;
+  if (a.restore) mj_getState(m, d, range.snapshot.data(), a.restore);
+  for (;;) {
+    int64_t i = range.begin.load(std::memory_order_relaxed);
+    if (i >= range.end) break;
+    if (a.restore) mj_setState(m, d, range.snapshot.data(), a.restore);
+    for (const ParamSlot& p : a.params) {
+      Load(p.src, p.type, i * p.size, ModelArray(m, p.offset), p.size);
+    }
+    RunOne(m, d, i, a);
+    range.begin.store(i + 1, std::memory_order_relaxed);
+  }
+}
+
+// One call's envs cut into ranges, shared by the threads that step them: the caller's
+// and the tasks it hands to XLA's thread pool. Held by a shared_ptr, so that a task
+// which starts after the call returned finds nothing left and touches no buffer.
+struct Work {
+  CallArgs call;
+  std::vector<Range> ranges;
+  std::atomic<size_t> next{0};  // the next range to claim
+  std::atomic<size_t> done{0};  // ranges stepped
+  std::mutex mu;
+  std::string error;  // the first range that could not run, and why
+};
+
+// Step range r on a Sim of its own. An env whose step raised an error ends mjb_apply
+// early: it comes back NaN, and the rest of the range is stepped again.
+void StepRange(Work& w, Range& range) {
+  Engine* e = w.call.engine;
+  SimLease lease(e);
+  Sim& sim = *lease;
+  if (!sim.batch) {
+    mjBatchConfig config;
+    mjb_defaultConfig(&config);
+    config.nthread = 1;
+    config.persistent = 0;
+    char error[512] = "";
+    sim.batch = mjb_makeBatch(e->model, 1, &config, error, sizeof(error));
+    if (!sim.batch) {
+      std::lock_guard<std::mutex> lock(w.mu);
+      if (w.error.empty()) w.error = std::string("mjb_makeBatch failed: ") + error;
+      return;
+    }
+  }
+  range.sim = &sim;
+  while (range.begin.load(std::memory_order_relaxed) < range.end) {
+    mjb_apply(sim.batch, nullptr, 1, RunRange, &range, 0);
+    if (mjb_status(sim.batch)[0]) {
+      int64_t failed = range.begin.load(std::memory_order_relaxed);
+      WriteNaN(w.call, failed);
+      range.begin.store(failed + 1, std::memory_order_relaxed);
+    }
+  }
+}
+
+// Claim and step ranges until none is left.
+void Drain(Work& w) {
+  for (;;) {
+    size_t r = w.next.fetch_add(1, std::memory_order_relaxed);
+    if (r >= w.ranges.size()) return;
+    StepRange(w, w.ranges[r]);
+    w.done.fetch_add(1, std::memory_order_release);
   }
 }
 
@@ -414,10 +575,10 @@ void QuietDefaultClock() {
 
 // ------------------------------------------------------------------ the handler
 
-ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t threads,
-                    int64_t serial_work, std::string_view inputs, std::string_view params,
-                    std::string_view outputs, ffi::RemainingArgs args,
-                    ffi::RemainingRets rets) {
+ffi::Error StepImpl(ffi::ThreadPool pool, std::string_view model_key, int64_t substeps,
+                    int64_t threads, int64_t serial_work, std::string_view inputs,
+                    std::string_view params, std::string_view outputs,
+                    ffi::RemainingArgs args, ffi::RemainingRets rets) {
   Engine* e = CachedEngine(model_key);
   if (!e) {
     return ffi::Error(
@@ -437,9 +598,12 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
   }
   const mjModel* m = e->model;
 
-  CallArgs call;
+  auto work = std::make_shared<Work>();
+  CallArgs& call = work->call;
+  call.engine = e;
   call.plan = plan;
   call.substeps = static_cast<int>(substeps);
+  call.timestep = m->opt.timestep;
   call.in.reserve(nin);
   call.in_type.reserve(nin);
   call.out.reserve(plan->outputs.size());
@@ -491,76 +655,52 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
   if (nsim == 0) return ffi::Error::Success();
   if (nsim > std::numeric_limits<int>::max()) return Fail("batch too large");
 
-  // small work runs on the calling thread: a hand-off to the pool costs more
-  int nthread = static_cast<int>(threads);
-  if (nsim * std::max<int64_t>(substeps, 1) * std::max(m->nv, static_cast<mjtSize>(1)) <
-      serial_work) {
-    nthread = 1;
-  }
-  PoolLease lease(e, nthread);
-  Pool& pool = *lease;
-  if (pool.nsim < nsim) {
-    if (pool.batch) mjb_deleteBatch(pool.batch);
-    mjBatchConfig config;
-    mjb_defaultConfig(&config);
-    config.nthread = nthread;
-    config.persistent = 0;
-    char error[512] = "";
-    pool.batch = mjb_makeBatch(m, static_cast<int>(nsim), &config, error, sizeof(error));
-    pool.nsim = pool.batch ? static_cast<int>(nsim) : 0;
-    pool.expanded.clear();
-    if (!pool.batch) return Fail(std::string("mjb_makeBatch failed: ") + error);
-  }
-  // per-simulation model fields: this call's params; fields an earlier call expanded
-  // and this one does not give go back to the model's values
-  for (const std::string& name : pool.expanded) {
-    if (std::find(plan->params.begin(), plan->params.end(), name) != plan->params.end()) {
-      continue;
-    }
-    auto* rows = static_cast<mjtNum*>(mjb_expand(pool.batch, name.c_str(), nullptr, nullptr));
-    const std::vector<mjtNum>* found;
-    {
-      std::lock_guard<std::mutex> lock(e->mu);
-      found = &e->defaults[name];  // std::map: the address stays valid
-    }
-    const std::vector<mjtNum>& value = *found;
-    for (int64_t i = 0; i < nsim; ++i) {
-      std::memcpy(rows + i * value.size(), value.data(), value.size() * sizeof(mjtNum));
-    }
-  }
   for (size_t k = 0; k < npar; ++k) {
     const std::string& name = plan->params[k];
-    int size = 0, elem = 0;
-    auto* rows = static_cast<mjtNum*>(mjb_expand(pool.batch, name.c_str(), &size, &elem));
-    if (!rows || elem != static_cast<int>(sizeof(mjtNum))) {
+    ModelField f = FindModelField(m, name);
+    if (f.offset < 0 || !f.is_num) {
       return Fail("params field '" + name + "' is not a floating-point mjModel field");
     }
-    {
-      std::lock_guard<std::mutex> lock(e->mu);
-      if (!e->defaults.count(name)) {  // a fresh expansion holds the model's values
-        e->defaults[name] = std::vector<mjtNum>(rows, rows + size);
-      }
-    }
-    pool.expanded.insert(name);
     const ffi::AnyBuffer& buf = param_bufs[k];
-    if (static_cast<int64_t>(buf.element_count()) != nsim * size) {
+    if (static_cast<int64_t>(buf.element_count()) != nsim * f.size) {
       return Fail("params field '" + name + "' does not have the model's shape per env");
     }
-    Load(buf.untyped_data(), buf.element_type(), 0, rows, nsim * size);
+    call.params.push_back(ParamSlot{f.offset, f.size, buf.untyped_data(), buf.element_type()});
+  }
+  // the state a range's mjData holds that no input sets (a zero-sized input's component,
+  // ...) goes back to the batch's initial state before each env, as mj_setState would
+  call.restore = mjSTATE_INTEGRATION & ~plan->input_spec;
+  for (int bit = 1; bit <= call.restore; bit <<= 1) {
+    if ((call.restore & bit) && mj_stateSize(m, bit) == 0) call.restore &= ~bit;
   }
 
-  std::vector<int> ids;
-  const int* id_ptr = nullptr;
-  if (pool.nsim != nsim) {
-    ids.resize(nsim);
-    for (int i = 0; i < nsim; ++i) ids[i] = i;
-    id_ptr = ids.data();
+  // Up to `threads` threads step the envs: this one and tasks on XLA's own thread pool
+  // (so no thread of ours competes with XLA's for the cores), a few ranges each to even
+  // out envs that step slower than others. Small work stays on this thread: a hand-off
+  // costs more.
+  int64_t workers = std::min<int64_t>(threads, pool.num_threads() + 1);
+  if (nsim * std::max<int64_t>(substeps, 1) * std::max(m->nv, static_cast<mjtSize>(1)) <
+      serial_work) {
+    workers = 1;
   }
-  mjb_apply(pool.batch, id_ptr, static_cast<int>(nsim), RunOne, &call, 0);
-  const int* status = mjb_status(pool.batch);
-  for (int i = 0; i < nsim; ++i) {
-    if (status[i]) WriteNaN(call, i);
+  int64_t nrange = std::min<int64_t>(nsim, workers * kRangesPerWorker);
+  workers = std::min(workers, nrange);
+  int64_t snapshot = call.restore ? mj_stateSize(m, call.restore) : 0;
+  work->ranges = std::vector<Range>(nrange);
+  for (int64_t r = 0; r < nrange; ++r) {
+    Range& range = work->ranges[r];
+    range.begin.store(r * nsim / nrange, std::memory_order_relaxed);
+    range.end = (r + 1) * nsim / nrange;
+    range.snapshot.resize(snapshot);
+    range.call = &work->call;
   }
+  for (int64_t k = 1; k < workers; ++k) pool.Schedule([work] { Drain(*work); });
+  Drain(*work);
+  // ranges other threads claimed are being stepped: wait for them
+  while (work->done.load(std::memory_order_acquire) < work->ranges.size()) {
+    std::this_thread::yield();
+  }
+  if (!work->error.empty()) return Fail(work->error);
   return ffi::Error::Success();
 }
 
@@ -571,6 +711,7 @@ ffi::Error StepImpl(std::string_view model_key, int64_t substeps, int64_t thread
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(JaxenvsMjStep, StepImpl,
                               ffi::Ffi::Bind()
+                                  .Ctx<ffi::ThreadPool>()
                                   .Attr<std::string_view>("model")
                                   .Attr<int64_t>("substeps")
                                   .Attr<int64_t>("threads")
