@@ -461,9 +461,11 @@ void RunOne(const mjModel* m, mjData* d, int64_t sim, const CallArgs& a) {
 
 // ------------------------------------------------------------------ ranges of envs
 
-// ranges a worker thread's share of a call is cut into: a few, so that threads whose envs
-// step faster take over the ranges of slower ones
-constexpr int64_t kRangesPerWorker = 4;
+// ranges a worker thread's share of a call is cut into, so that threads whose envs step
+// faster take over the ranges of slower ones (a walker's contacts vary), each of at least
+// kMinRange envs (a range costs one mjb_apply: a state load and an error trap)
+constexpr int64_t kRangesPerWorker = 16;
+constexpr int64_t kMinRange = 8;
 
 struct alignas(64) Range {  // envs [begin, end) of a call, stepped in turn in one mjData
   // the env being stepped, or the next: where an error stopped (atomic: stored before
@@ -683,7 +685,8 @@ ffi::Error StepImpl(ffi::ThreadPool pool, std::string_view model_key, int64_t su
       serial_work) {
     workers = 1;
   }
-  int64_t nrange = std::min<int64_t>(nsim, workers * kRangesPerWorker);
+  int64_t nrange = std::max<int64_t>(
+      1, std::min<int64_t>((nsim + kMinRange - 1) / kMinRange, workers * kRangesPerWorker));
   workers = std::min(workers, nrange);
   int64_t snapshot = call.restore ? mj_stateSize(m, call.restore) : 0;
   work->ranges = std::vector<Range>(nrange);
