@@ -3,6 +3,7 @@ engine's costs (memory, first call)."""
 
 from __future__ import annotations
 
+import statistics
 from typing import Any
 
 from .common import Cells, Rec, Table, by_engine, rate, rows, secs
@@ -164,6 +165,41 @@ def emitters_ab(recs: list[Rec]) -> Cells:
     return cells
 
 
+def native_ab(recs: list[Rec]) -> Cells:
+    """Two builds of the native engine (``benchmarks/native_ab.sh``), per task and batch:
+    each build's median over its rounds, and head / base per round (alternating
+    processes, so a round's pair ran side by side)."""
+    cells = [["cores", "task", "envs", "base", "head", "head / base", "per round"]]
+    for rec in recs:
+        cores = str(rec["machine"]["cores"])
+        got: dict[tuple[str, int], dict[str, dict[int, float]]] = {}
+        for r in rows(rec):
+            per = got.setdefault((r["task"], r["num_envs"]), {}).setdefault(r["build"], {})
+            per[r["round"]] = r["env_steps_per_s"]
+        for (task, n), builds in sorted(got.items()):
+            base, head = builds["base"], builds["head"]
+            mb, mh = statistics.median(base.values()), statistics.median(head.values())
+            rounds = ", ".join(f"{head[k] / base[k]:.2f}" for k in sorted(base) if k in head)
+            cells.append([cores, task, f"{n:,}", rate(mb), rate(mh), f"{mh / mb:.2f}", rounds])
+    return cells
+
+
+def shard_threads(recs: list[Rec]) -> Cells:
+    """C per setup (host devices; each device's call with its share of the threads or all
+    of them), task and batch: the median over rounds, and over the default setup."""
+    (rec,) = recs
+    got: dict[tuple[str, int], dict[str, list[float]]] = {}
+    for r in rows(rec):
+        per = got.setdefault((r["task"], r["num_envs"]), {})
+        per.setdefault(r["setup"], []).append(r["env_steps_per_s"])
+    setups = ["default", "shardall", "dev16", "dev16all"]
+    cells = [["task", "envs", *setups, *(f"{s} / default" for s in setups[1:])]]
+    for (task, n), by in sorted(got.items()):
+        med = [statistics.median(by[s]) for s in setups]
+        cells.append([task, f"{n:,}", *map(rate, med), *(f"{m / med[0]:.2f}" for m in med[1:])])
+    return cells
+
+
 def _sweep_files(machine: str) -> tuple[str, ...]:
     return tuple(
         f"engines_sweep_{machine}_{t}" for t in ("cartpolev0", "reacherv0", "hexapodwalkv0")
@@ -171,15 +207,19 @@ def _sweep_files(machine: str) -> tuple[str, ...]:
 
 
 TABLES = {
-    "engines-sweep-cpu16-chunks": Table(_sweep_files("cpu16chunks"), engines_sweep),
-    "engines-sweep-cpu16-compact": Table(_sweep_files("cpu16compact"), engines_sweep),
+    "native-ab": Table(("native_ab_cpu16", "native_ab_cpu2"), native_ab),
+    "engines-sweep-cpu16-pool": Table(_sweep_files("cpu16pool"), engines_sweep),
+    "engines-sweep-cpu2-pool": Table(_sweep_files("cpu2pool")[:2], engines_sweep),
+    "engines-cpu16-shard-threads": Table(("engines_cpu16_shard_threads",), shard_threads),
+    "engines-sweep-cpu16-chunks": Table(_sweep_files("cpu16chunks"), engines_sweep_before),
+    "engines-sweep-cpu16-compact": Table(_sweep_files("cpu16compact"), engines_sweep_before),
     "engines-cpu16-device-count-compact": Table(
         ("engines_cpu16_device_count_compact",), device_count
     ),
     "auto-reset-ab": Table(("auto_reset_ab_cpu16", "auto_reset_ab_cpu2"), reset_ab),
-    "engines-sweep-cpu16-fields": Table(_sweep_files("cpu16fields"), engines_sweep),
-    "engines-sweep-cpu2-emitters": Table(_sweep_files("cpu2emitters")[:2], engines_sweep),
-    "engines-sweep-cpu2-fields": Table(_sweep_files("cpu2fields"), engines_sweep),
+    "engines-sweep-cpu16-fields": Table(_sweep_files("cpu16fields"), engines_sweep_before),
+    "engines-sweep-cpu2-emitters": Table(_sweep_files("cpu2emitters")[:2], engines_sweep_before),
+    "engines-sweep-cpu2-fields": Table(_sweep_files("cpu2fields"), engines_sweep_before),
     "engines-cpu16-device-count": Table(("engines_cpu16_device_count",), device_count),
     "engines-sweep-cpu16": Table(_sweep_files("cpu16"), engines_sweep_before),
     "engines-sweep-cpu16-split": Table(_sweep_files("cpu16split"), engines_sweep_before),
@@ -188,6 +228,7 @@ TABLES = {
     "c-costs-cpu2": Table(("c_engine_costs_cpu2",), c_costs),
     "c-memory-cpu2": Table(("c_memory_cpu2",), c_memory),
     "c-memory-cpu2-emitters": Table(("c_memory_cpu2_emitters",), c_memory),
+    "c-memory-cpu2-pool": Table(("c_memory_cpu2_pool",), c_memory),
     "emitters-ab-cpu2": Table(("compiler_options_ab_cpu2",), emitters_ab),
     "auto-reset-ab-chunks": Table(
         ("auto_reset_ab_cpu16chunks", "auto_reset_ab_cpu2chunks"), reset_ab

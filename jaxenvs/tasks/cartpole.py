@@ -66,12 +66,12 @@ class CartpoleRandomization(CartpoleRanges, TaskConfig):
 class _CartpoleTask(RobotTask):
     """What the four cartpole tasks share: the robot, params, the engine choice."""
 
-    #: physics="auto" on a CPU: C, and MJX from 256 envs per CPU device (256 on 2 cores,
-    #: 2,048 on 16; benchmarks/RESULTS.md, "physics='auto' on a CPU")
+    #: physics="auto" on a CPU: C at every batch size (with the engine stepping on XLA's
+    #: thread pool, C led MJX at 16 to 16,384 envs on 2 and on 16 cores;
+    #: benchmarks/RESULTS.md, "physics='auto' on a CPU")
     cpu_physics = "c"
     #: every reading comes from qpos/qvel: the C engine writes no derived field
     derived_fields: tuple[str, ...] | None = ()
-    cpu_mjx_from: int | None = 256
     robot: Cartpole
 
 
