@@ -53,6 +53,7 @@ def main_command_ratios(recs: list[Rec]) -> Cells:
 TABLES = {
     "main-command-cpu2": Table(("main_command_cpu2",), main_command),
     "main-command-ratios-cpu2": Table(("main_command_cpu2",), main_command_ratios),
+    "main-command-ratios-pool-cpu2": Table(("main_command_cpu2_pool",), main_command_ratios),
     "main-command-ratios-emitters-cpu2": Table(
         ("main_command_cpu2_emitters",), main_command_ratios
     ),
