@@ -65,7 +65,7 @@ def cores() -> int:
 
 
 def cpu_threads() -> int:
-    """Threads of the C engine's pool (:func:`cores`)."""
+    """The most threads a C engine call steps its envs with (:func:`cores`)."""
     return cores()
 
 

@@ -149,7 +149,7 @@ struct ModelField {
   bool is_num = false;  // mjtNum
 };
 
-// model array name of m
+// The array of model m called name: its pointer's offset in mjModel, and its size.
 ModelField FindModelField(const mjModel* m, std::string_view name) {
   MJMODEL_POINTERS_PREAMBLE(m)
 #define X(type, field, nr, nc)                                                  \
