@@ -200,6 +200,34 @@ def shard_threads(recs: list[Rec]) -> Cells:
     return cells
 
 
+def reset_sync(recs: list[Rec]) -> Cells:
+    """C at 16,384 envs on 16 cores as one program over 8 devices, against 8 processes of
+    2,048 envs on 2 cores each (their sum) and against the same program without the
+    auto-reset's cross-device max (medians over rounds), beside ``mujoco.rollout``."""
+    (rec,) = recs
+    cells = [["task", "one program", "8 processes", "no cross-device max", "mujoco.rollout"]]
+    cells[0] += ["8 processes / one", "no max / default"]
+
+    def rates(task: str, setup: str, name: str = "jaxenvs") -> list[float]:
+        return [
+            r["env_steps_per_s"]
+            for r in rows(rec, task=task)
+            if r["setup"] == setup and r["name"] == name
+        ]
+
+    for task in sorted({r["task"] for r in rows(rec)}):
+        one = rates(task, "one process, 8 devices")[0]
+        procs = sum(rates(task, "8 processes x 2 cores"))
+        default = statistics.median(rates(task, "default"))
+        no_max = statistics.median(rates(task, "one chunk, no max"))
+        rollout = rates(task, "one process, 8 devices", "mujoco.rollout")[0]
+        cells.append(
+            [task, rate(one), rate(procs), rate(no_max), rate(rollout)]
+            + [f"{procs / one:.2f}", f"{no_max / default:.2f}"]
+        )
+    return cells
+
+
 def _sweep_files(machine: str) -> tuple[str, ...]:
     return tuple(
         f"engines_sweep_{machine}_{t}" for t in ("cartpolev0", "reacherv0", "hexapodwalkv0")
@@ -211,6 +239,7 @@ TABLES = {
     "engines-sweep-cpu16-pool": Table(_sweep_files("cpu16pool"), engines_sweep),
     "engines-sweep-cpu2-pool": Table(_sweep_files("cpu2pool")[:2], engines_sweep),
     "engines-cpu16-shard-threads": Table(("engines_cpu16_shard_threads",), shard_threads),
+    "engines-cpu16-reset-sync": Table(("engines_cpu16_reset_sync",), reset_sync),
     "engines-sweep-cpu16-chunks": Table(_sweep_files("cpu16chunks"), engines_sweep_before),
     "engines-sweep-cpu16-compact": Table(_sweep_files("cpu16compact"), engines_sweep_before),
     "engines-cpu16-device-count-compact": Table(
