@@ -68,16 +68,20 @@ _SCRIPT = textwrap.dedent(
     res["c_devices"] = jaxenvs.make("CartPole-v0", num_envs=8, physics="c").devices
     res["c_devices_big"] = jaxenvs.make("CartPole-v0", num_envs=2048, physics="c").devices
     res["c_devices_mid"] = jaxenvs.make("CartPole-v0", num_envs=1024, physics="c").devices
-    # the compact auto-reset over 4 devices (64 envs each, 8 places) equals the whole one
+    # a C batch over 4 devices computes every fresh start at every step (the default);
+    # the compact auto-reset (64 envs each, 8 places) and the whole one give the same
     from jaxenvs.core import batch as _batch
-    compact = _batch.reset_slots
-    for tag, slots in (("compact", compact), ("whole", lambda n, platform="cpu": 0)):
-        _batch.reset_slots = slots
+    compact, every = _batch.reset_slots, _batch.resets_every_step
+    never = lambda *args: False
+    whole = lambda n, platform="cpu": 0
+    for tag, slots, each in (("every", compact, every), ("compact", compact, never),
+                             ("whole", whole, never)):
+        _batch.reset_slots, _batch.resets_every_step = slots, each
         benv = jaxenvs.make("CartPole-v0", num_envs=256, physics="c", devices=4)
         res[f"reset_devices_{tag}"] = benv.devices
         for name, x in zip(("obs", "reward", "done"), rollout(benv, 60)[1]):
             arrays[f"reset_{tag}_{name}"] = x
-    _batch.reset_slots = compact
+    _batch.reset_slots, _batch.resets_every_step = compact, every
     # ... and a task with c_envs_per_device=None (the hexapod's) stays on one device
     res["c_walker_big"] = jaxenvs.make("HexapodWalk-v0", num_envs=2048, physics="c").devices
     arrays["c_2"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=2))[1][0]
@@ -120,14 +124,17 @@ def test_batch_spreads_over_all_devices_by_default(four_devices):
 
 
 @pytest.mark.full  # the 4-device subprocess above
-def test_compact_auto_reset_over_devices_equals_the_whole_one(four_devices):
+def test_every_auto_reset_over_devices_gives_the_same_states(four_devices):
+    """Fresh starts at every step (a C batch's default over devices), compact and whole."""
     res, arrays = four_devices
-    assert res["reset_devices_compact"] == res["reset_devices_whole"] == 4
+    assert res["reset_devices_every"] == res["reset_devices_compact"] == 4
+    assert res["reset_devices_whole"] == 4
     assert arrays["reset_compact_done"].sum() > 60  # resets happened, on every step or so
-    for name in ("obs", "reward", "done"):
-        np.testing.assert_array_equal(
-            arrays[f"reset_compact_{name}"], arrays[f"reset_whole_{name}"]
-        )
+    for tag in ("every", "whole"):
+        for name in ("obs", "reward", "done"):
+            np.testing.assert_array_equal(
+                arrays[f"reset_compact_{name}"], arrays[f"reset_{tag}_{name}"]
+            )
 
 
 @pytest.mark.full  # a 4-device subprocess: the full tier

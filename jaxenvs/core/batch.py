@@ -26,18 +26,21 @@ class BatchedEnv:
     ``env.reset(k, params)``'s for its key ``k``, the params drawn from
     ``jax.random.split(k, 4)[3]`` (with JAX's default partitionable threefry).
 
-    **What a step resets.** A step computes fresh starts only when an env finished. On a
-    CPU, from :data:`COMPACT_RESET_FROM` envs a device of the batch's own spread (all
-    envs for a batch on one device, however its caller places it), it computes them for
-    the finished envs alone, gathered in chunks of :func:`reset_slots` places a device
-    (an eighth of its envs), one chunk a loop iteration, as many iterations as the device
-    with the most finished envs needs: the program holds one copy of the reset's code.
-    Below that size, on accelerators, and with ``compact_reset=False``, it computes them
-    for the whole batch. Each env's fresh start depends on its own key (and params) only,
-    so the states are the same bit for bit either way. Pass ``compact_reset=False`` for a
-    batch stepped under ``vmap`` (the training runner vmaps its agents over seeds): there
-    the loop's trip count is batched, and ``vmap`` runs every env through the most
-    iterations any of them needs.
+    **What a step resets.** On a CPU, from :data:`COMPACT_RESET_FROM` envs a device of the
+    batch's own spread (all envs for a batch on one device, however its caller places
+    it), a step computes fresh starts for the finished envs alone, gathered in chunks of
+    :func:`reset_slots` places a device (an eighth of its envs), one chunk a loop
+    iteration, as many iterations as the device with the most finished envs needs: the
+    program holds one copy of the reset's code. A C batch spread over several CPU devices
+    instead computes every env's fresh start at every step and keeps the finished envs'
+    (:func:`resets_every_step`): no step then waits on a decision taken across the
+    devices. Below :data:`COMPACT_RESET_FROM`, on accelerators, and with
+    ``compact_reset=False``, a step computes them for the whole batch when any env
+    finished. Each env's fresh start depends on its own key (and params) only, so the
+    states are the same bit for bit every way. Pass ``compact_reset=False`` for a batch
+    stepped under ``vmap`` (the training runner vmaps its agents over seeds): there the
+    loop's trip count is batched, and ``vmap`` runs every env through the most iterations
+    any of them needs.
 
     **Devices.** The batch is spread over the local devices that
     :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
@@ -144,6 +147,8 @@ class BatchedEnv:
             merged = self._merge(nxt, lambda new, old: _where(done, new, old), fresh)
             return _zero_counters(merged, done)
 
+        if self.compact_reset and resets_every_step(rows, jax.default_backend(), self.env.physics):
+            return reset_all(nxt)
         if slots == 0:
             return jax.lax.cond(jnp.any(done), reset_all, lambda s: s, nxt)
         # each device row's finished envs, in order, in chunks of `slots` places (the
@@ -204,6 +209,16 @@ def reset_slots(per_device: int, platform: str = "cpu") -> int:
     if platform != "cpu" or per_device < COMPACT_RESET_FROM:
         return 0
     return per_device // 8
+
+
+def resets_every_step(devices: int, platform: str, physics: str) -> bool:
+    """Whether a step computes every env's fresh start and keeps the finished envs', with
+    nothing decided across devices: for a C batch spread over several CPU devices. There
+    the compact reset's one cross-device reduction a step (the most finished envs on any
+    device, its loop's trip count) made every device wait for the slowest, and computing
+    every fresh start was 1.09-1.21x faster for CartPole and the reacher on 16 cores
+    (benchmarks/NOTES.md, "The native engine on XLA's thread pool")."""
+    return devices > 1 and platform == "cpu" and physics == "c"
 
 
 def _zero_counters(state: State, done: jax.Array) -> State:
