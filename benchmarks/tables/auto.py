@@ -236,6 +236,8 @@ def _sweep_files(machine: str) -> tuple[str, ...]:
 
 TABLES = {
     "native-ab": Table(("native_ab_cpu16", "native_ab_cpu2"), native_ab),
+    "reset-every-step-ab": Table(("reset_every_step_ab_cpu16",), native_ab),
+    "engines-sweep-cpu16-every": Table(_sweep_files("cpu16every")[:2], engines_sweep),
     "engines-sweep-cpu16-pool": Table(_sweep_files("cpu16pool"), engines_sweep),
     "engines-sweep-cpu2-pool": Table(_sweep_files("cpu2pool")[:2], engines_sweep),
     "engines-cpu16-shard-threads": Table(("engines_cpu16_shard_threads",), shard_threads),
