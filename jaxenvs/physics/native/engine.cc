@@ -40,7 +40,6 @@
 #include <map>
 #include <memory>
 #include <mutex>
-#include <set>
 #include <string>
 #include <string_view>
 #include <thread>
@@ -106,10 +105,16 @@ struct Slot {  // one argument or result
   int64_t size = 0;  // elements per simulation
 };
 
+struct ModelField {
+  int64_t offset = -1;  // of the pointer member in mjModel; -1: no such array
+  int64_t size = 0;     // elements
+  bool is_num = false;  // mjtNum
+};
+
 struct Plan {
   std::vector<Slot> inputs, outputs;
   std::vector<std::string> params;
-  std::vector<int64_t> param_sizes;
+  std::vector<ModelField> param_fields;  // where each params field is in mjModel
   std::vector<const DataField*> zeroed;  // derived outputs, cleared before a step
   int input_spec = 0;                    // the mjtState components the inputs set
 };
@@ -142,12 +147,6 @@ const std::map<std::string, int>& StateFields() {
       {"userdata", mjSTATE_USERDATA}};
   return *fields;
 }
-
-struct ModelField {
-  int64_t offset = -1;  // of the pointer member in mjModel; -1: no such array
-  int64_t size = 0;     // elements
-  bool is_num = false;  // mjtNum
-};
 
 // The array of model m called name: its pointer's offset in mjModel, and its size.
 ModelField FindModelField(const mjModel* m, std::string_view name) {
@@ -315,6 +314,14 @@ ffi::ErrorOr<const Plan*> PlanFor(Engine* e, std::string_view inputs, std::strin
     plan.outputs.push_back(*s);
   }
   plan.params = Split(params);
+  for (const std::string& name : plan.params) {
+    ModelField f = FindModelField(m, name);
+    if (f.offset < 0 || !f.is_num) {
+      return ffi::Unexpected(
+          Fail("params field '" + name + "' is not a floating-point mjModel field"));
+    }
+    plan.param_fields.push_back(f);
+  }
   return &e->plans.emplace(key, std::move(plan)).first->second;
 }
 
@@ -658,14 +665,11 @@ ffi::Error StepImpl(ffi::ThreadPool pool, std::string_view model_key, int64_t su
   if (nsim > std::numeric_limits<int>::max()) return Fail("batch too large");
 
   for (size_t k = 0; k < npar; ++k) {
-    const std::string& name = plan->params[k];
-    ModelField f = FindModelField(m, name);
-    if (f.offset < 0 || !f.is_num) {
-      return Fail("params field '" + name + "' is not a floating-point mjModel field");
-    }
+    const ModelField& f = plan->param_fields[k];
     const ffi::AnyBuffer& buf = param_bufs[k];
     if (static_cast<int64_t>(buf.element_count()) != nsim * f.size) {
-      return Fail("params field '" + name + "' does not have the model's shape per env");
+      return Fail("params field '" + plan->params[k] +
+                  "' does not have the model's shape per env");
     }
     call.params.push_back(ParamSlot{f.offset, f.size, buf.untyped_data(), buf.element_type()});
   }
