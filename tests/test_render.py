@@ -139,6 +139,14 @@ def test_frames_larger_than_model_buffer(env, trajectory):
     assert frames.shape == (1, 600, 800, 3)
 
 
+def test_iter_frames_draws_the_frames_of_render_frames_one_at_a_time(env, trajectory):
+    stream = render.iter_frames(env, trajectory, width=W, height=H)
+    first = next(stream)
+    assert first.shape == (H, W, 3) and first.dtype == np.uint8
+    frames = np.stack([first, *stream])
+    np.testing.assert_array_equal(frames, render.render_frames(env, trajectory, width=W, height=H))
+
+
 def test_write_video_mp4_and_gif(tmp_path, env, trajectory):
     frames = render.render_frames(env, trajectory, width=W, height=H)
     mp4 = render.write_video(frames, tmp_path / "a.mp4", fps=25)

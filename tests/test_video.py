@@ -90,6 +90,44 @@ def test_the_real_encoder_writes_what_it_is_given(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]
 
 
+def test_frames_streamed_from_an_iterator_encode_the_same_video_as_an_array(tmp_path):
+    frames = (np.arange(20 * 48 * 64 * 3) % 251).astype(np.uint8).reshape(20, 48, 64, 3)
+    from_array = render.write_video(frames, tmp_path / "a.mp4", fps=25)
+    taken: list[int] = []
+
+    def one_at_a_time():
+        for t, frame in enumerate(frames):
+            taken.append(t)
+            yield frame
+
+    from_stream = render.write_video(one_at_a_time(), tmp_path / "s.mp4", fps=25)
+    assert taken == list(range(20))
+    assert from_stream.read_bytes() == from_array.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((48, 62, 3), np.uint8), r"frame 3 .*\(48, 62, 3\)"),
+        (np.zeros((48, 64, 3)), "float"),
+    ],
+)
+def test_a_bad_frame_part_way_stops_the_encoder_and_writes_nothing(tmp_path, bad, match):
+    target = tmp_path / "v.mp4"
+    target.write_bytes(b"old video")
+    stream = [*FRAMES[:3], bad, *FRAMES[3:]]
+    with pytest.raises(ValueError, match=match):
+        render.write_video(iter(stream), target, fps=25)
+    assert target.read_bytes() == b"old video"
+    assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]
+
+
+def test_an_empty_stream_is_refused(tmp_path):
+    with pytest.raises(ValueError, match="no frame"):
+        render.write_video(iter([]), tmp_path / "v.mp4", fps=25)
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_odd_size_mp4_is_refused_before_encoding(tmp_path):
     with pytest.raises(ValueError, match=r"even width and height .* 65x49"):
         render.write_video(np.zeros((2, 49, 65, 3), np.uint8), tmp_path / "v.mp4", fps=25)

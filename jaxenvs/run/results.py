@@ -176,7 +176,7 @@ def write_policy_video(
         stride = max(1, round(1.0 / (env.control_dt * VIDEO_FPS)))
         states = jax.tree.map(lambda x: np.asarray(x)[: length + 1 : stride], trajectory)
         width, height = VIDEO_SIZE
-        frames = render.render_frames(env, states, width=width, height=height)
+        frames = render.iter_frames(env, states, width=width, height=height)
         render.write_video(frames, path, fps=1.0 / (env.control_dt * stride))
     except Exception as err:  # noqa: BLE001 - the video is optional
         say(f"no video: {str(err).splitlines()[0] if str(err) else type(err).__name__}")
