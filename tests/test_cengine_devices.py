@@ -102,7 +102,8 @@ def test_c_batch_over_two_devices_is_bit_identical_and_split(native_run):
 @pytest.mark.full  # a second 2-device subprocess
 def test_callback_path_over_two_devices_is_bit_identical_unsplit(callback_run):
     """The Python-callback path (``JAXENVS_NATIVE=0``) on 2 devices: the same states as on
-    one device, its call unpartitioned (one device steps the whole batch)."""
+    one device; the step is a program per device, so its call too sees each device's 4
+    envs (the callback is not partitioned, but a shard_map holds it as it is)."""
     _check_split(False, *callback_run)
 
 
@@ -115,12 +116,12 @@ def _check_split(native: bool, res: dict, arrays: dict) -> None:
     done = arrays[leaves[-1]]
     assert done.dtype == bool and done.any()  # episodes ended: the auto-reset ran
     _check_bit_identical(arrays, "CartPole-v0")
-    # the compiled engine calls: per device 4 envs on the spread layout, 8 on one device;
-    # the callback path is not partitioned (one device steps the whole batch)
+    # the compiled engine calls of the step: per device 4 envs on the spread layout, 8 on
+    # one device, on both paths (the step is a program per device)
     nq = 2  # CartPole's qpos
     spread, one = res[t + "calls_spread"], res[t + "calls_one"]
     assert spread and one
-    per_device = 4 if native else 8
+    per_device = 4
     assert all(f"[{per_device},{nq}]" in c for c in spread), spread[0][:300]
     assert not any(f"[{12 - per_device},{nq}]" in c for c in spread), spread[0][:300]
     assert all(f"[8,{nq}]" in c for c in one), one[0][:300]

@@ -117,10 +117,10 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(
     n, steps = 128, 150
     assert batch.reset_slots(n) == 16 and batch.reset_slots(63) == 0
     assert batch.reset_slots(n, "gpu") == 0
-    # a C batch over several CPU devices takes fresh starts at every step instead
-    assert batch.resets_every_step(2, "cpu", "c")
+    # a C batch over several CPU devices steps as a program per device
+    assert batch.steps_per_device(2, "cpu", "c")
     assert not any(
-        batch.resets_every_step(*case)
+        batch.steps_per_device(*case)
         for case in ((1, "cpu", "c"), (2, "cpu", "mjx"), (2, "gpu", "c"))
     )
 

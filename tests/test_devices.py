@@ -68,20 +68,26 @@ _SCRIPT = textwrap.dedent(
     res["c_devices"] = jaxenvs.make("CartPole-v0", num_envs=8, physics="c").devices
     res["c_devices_big"] = jaxenvs.make("CartPole-v0", num_envs=2048, physics="c").devices
     res["c_devices_mid"] = jaxenvs.make("CartPole-v0", num_envs=1024, physics="c").devices
-    # a C batch over 4 devices computes every fresh start at every step (the default);
-    # the compact auto-reset (64 envs each, 8 places) and the whole one give the same
+    # a C batch over 4 devices steps as a program per device, each resetting its own
+    # finished envs (the default); one partitioned program with the compact auto-reset
+    # (64 envs each, 8 places) and with the whole one give the same
     from jaxenvs.core import batch as _batch
-    compact, every = _batch.reset_slots, _batch.resets_every_step
+    compact, per_device = _batch.reset_slots, _batch.steps_per_device
     never = lambda *args: False
     whole = lambda n, platform="cpu": 0
-    for tag, slots, each in (("every", compact, every), ("compact", compact, never),
+    for tag, slots, each in (("per_device", compact, per_device), ("compact", compact, never),
                              ("whole", whole, never)):
-        _batch.reset_slots, _batch.resets_every_step = slots, each
+        _batch.reset_slots, _batch.steps_per_device = slots, each
         benv = jaxenvs.make("CartPole-v0", num_envs=256, physics="c", devices=4)
         res[f"reset_devices_{tag}"] = benv.devices
-        for name, x in zip(("obs", "reward", "done"), rollout(benv, 60)[1]):
+        state, traj = rollout(benv, 60)
+        res[f"reset_shards_{tag}"] = len(state.obs.sharding.device_set)
+        a = random_actions(benv.env, jax.random.key(1), (benv.num_envs,))
+        hlo = jax.jit(benv.step).lower(state, a).compile().as_text()
+        res[f"reset_all_reduce_{tag}"] = "all-reduce" in hlo
+        for name, x in zip(("obs", "reward", "done"), traj):
             arrays[f"reset_{tag}_{name}"] = x
-    _batch.reset_slots, _batch.resets_every_step = compact, every
+    _batch.reset_slots, _batch.steps_per_device = compact, per_device
     # ... and a task with c_envs_per_device=None (the hexapod's) stays on one device
     res["c_walker_big"] = jaxenvs.make("HexapodWalk-v0", num_envs=2048, physics="c").devices
     arrays["c_2"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=2))[1][0]
@@ -124,13 +130,17 @@ def test_batch_spreads_over_all_devices_by_default(four_devices):
 
 
 @pytest.mark.full  # the 4-device subprocess above
-def test_every_auto_reset_over_devices_gives_the_same_states(four_devices):
-    """Fresh starts at every step (a C batch's default over devices), compact and whole."""
+def test_a_c_step_per_device_resets_like_one_partitioned_program(four_devices):
+    """A C batch over devices steps as a program per device (its default): no cross-device
+    reduction, and the states of the partitioned program's compact and whole resets."""
     res, arrays = four_devices
-    assert res["reset_devices_every"] == res["reset_devices_compact"] == 4
-    assert res["reset_devices_whole"] == 4
+    tags = ("per_device", "compact", "whole")
+    assert [res[f"reset_devices_{t}"] for t in tags] == [4, 4, 4]
+    assert [res[f"reset_shards_{t}"] for t in tags] == [4, 4, 4]
+    assert not res["reset_all_reduce_per_device"]
+    assert res["reset_all_reduce_compact"]  # the partitioned loop's trip count
     assert arrays["reset_compact_done"].sum() > 60  # resets happened, on every step or so
-    for tag in ("every", "whole"):
+    for tag in ("per_device", "whole"):
         for name in ("obs", "reward", "done"):
             np.testing.assert_array_equal(
                 arrays[f"reset_compact_{name}"], arrays[f"reset_{tag}_{name}"]

@@ -3,6 +3,7 @@ vmapped function, with fresh random auto-resets."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -32,9 +33,9 @@ class BatchedEnv:
     :func:`reset_slots` places a device (an eighth of its envs), one chunk a loop
     iteration, as many iterations as the device with the most finished envs needs: the
     program holds one copy of the reset's code. A C batch spread over several CPU devices
-    instead computes every env's fresh start at every step and keeps the finished envs'
-    (:func:`resets_every_step`): no step then waits on a decision taken across the
-    devices. Below :data:`COMPACT_RESET_FROM`, on accelerators, and with
+    steps as one program per device (:func:`steps_per_device`), so there each device
+    loops only as often as its own finished envs need: no step waits on a decision
+    taken across the devices. Below :data:`COMPACT_RESET_FROM`, on accelerators, and with
     ``compact_reset=False``, a step computes them for the whole batch when any env
     finished. Each env's fresh start depends on its own key (and params) only, so the
     states are the same bit for bit every way. Pass ``compact_reset=False`` for a batch
@@ -45,7 +46,8 @@ class BatchedEnv:
     **Devices.** The batch is spread over the local devices that
     :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
     ``reset`` and ``step`` keep every state leaf's env axis split over a 1-D mesh
-    (:func:`jaxenvs.core.placement.spread`), so each device steps its slice of envs. Every
+    (:func:`jaxenvs.core.placement.spread`, or :func:`~jaxenvs.core.placement.per_device`
+    for a C batch's step), so each device steps its slice of envs. Every
     env's arithmetic is the same as on one device, so trajectories are bit-identical.
     """
 
@@ -130,16 +132,24 @@ class BatchedEnv:
                 f"batched {type(self.env).__name__}: expected actions of shape {expected}, "
                 f"got {action.shape}"
             )
-        return placement.spread(self.mesh, self._step_batch, state, action, params)
+        if self.compact_reset and steps_per_device(
+            self.devices, jax.default_backend(), self.env.physics
+        ):
+            assert self.mesh is not None
+            step = functools.partial(self._step_batch, rows=1)
+            return placement.per_device(self.mesh, step, state, action, params)
+        step = functools.partial(self._step_batch, rows=self.devices)
+        return placement.spread(self.mesh, step, state, action, params)
 
-    def _step_batch(self, state: State, action: jax.Array, params: Params) -> State:
+    def _step_batch(self, state: State, action: jax.Array, params: Params, rows: int) -> State:
+        """The step of ``state``'s envs, as ``rows`` equal rows (devices) of envs that
+        each reset their own finished envs, in a loop as long as the row that needs most."""
         if state.params is not None:
             nxt = jax.vmap(self.env.step)(state, action, state.params)
         else:
             nxt = jax.vmap(self.env.step, in_axes=(0, 0, None))(state, action, params)
         done = nxt.done
-        rows = self.devices
-        per_row = self.num_envs // rows
+        per_row = done.shape[0] // rows
         slots = reset_slots(per_row, jax.default_backend()) if self.compact_reset else 0
 
         def reset_all(nxt: State) -> State:
@@ -147,8 +157,6 @@ class BatchedEnv:
             merged = self._merge(nxt, lambda new, old: _where(done, new, old), fresh)
             return _zero_counters(merged, done)
 
-        if self.compact_reset and resets_every_step(rows, jax.default_backend(), self.env.physics):
-            return reset_all(nxt)
         if slots == 0:
             return jax.lax.cond(jnp.any(done), reset_all, lambda s: s, nxt)
         # each device row's finished envs, in order, in chunks of `slots` places (the
@@ -211,13 +219,13 @@ def reset_slots(per_device: int, platform: str = "cpu") -> int:
     return per_device // 8
 
 
-def resets_every_step(devices: int, platform: str, physics: str) -> bool:
-    """Whether a step computes every env's fresh start and keeps the finished envs', with
-    nothing decided across devices: for a C batch spread over several CPU devices. There
-    the compact reset's one cross-device reduction a step (the most finished envs on any
-    device, its loop's trip count) made every device wait for the slowest, and computing
-    every fresh start was 1.09-1.21x faster for CartPole and the reacher on 16 cores
-    (benchmarks/NOTES.md, "The native engine on XLA's thread pool")."""
+def steps_per_device(devices: int, platform: str, physics: str) -> bool:
+    """Whether a step runs as one program per device (:func:`jaxenvs.core.placement.per_device`),
+    each device resetting its own finished envs: for a C batch spread over several CPU
+    devices. Partitioned as one program (:func:`jaxenvs.core.placement.spread`), the
+    compact reset's loop is as long as the device with the most finished envs needs, a
+    cross-device reduction at every step that made every device wait for the slowest
+    (benchmarks/NOTES.md, "A C step per device")."""
     return devices > 1 and platform == "cpu" and physics == "c"
 
 

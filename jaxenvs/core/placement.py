@@ -14,8 +14,9 @@ Three decisions, all here:
   engine call steps its slice with its share of the engine's threads:
   :mod:`jaxenvs.physics.cengine`; ``None`` keeps a C batch on one device).
   :class:`jaxenvs.core.BatchedEnv` keeps its batch on :func:`local_mesh` ``(n)`` through
-  :func:`spread`; the runner spreads its training state over the same count
-  (:mod:`jaxenvs.run.programs`).
+  :func:`spread` (one program the compiler partitions) or :func:`per_device` (a program
+  per device, for a C batch's step on a CPU); the runner spreads its training state over
+  the same count (:mod:`jaxenvs.run.programs`).
 * **Placing it yourself.** ``devices=1`` (``BatchedEnv.on_one_device()``) keeps a batch
   unspread, for callers that lay it out with their own shardings
   (:mod:`jaxenvs.core.sharding`'s meshes over every host's devices, which check their sizes with
@@ -32,6 +33,7 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
@@ -202,3 +204,58 @@ def spread(mesh: Mesh | None, fn: Callable[..., Any], *args: Any) -> Any:
     # (committed to one device) become part of one program over the mesh. Plain jax.jit:
     # XLA takes compiler options only on the outermost jit
     return jax.jit(run)(*args)
+
+
+def per_device(mesh: Mesh, fn: Callable[..., Any], *args: Any) -> Any:
+    """``fn(first, second, rest)`` run by each device of ``mesh`` on its own slice of the
+    first two arguments' leading (env) axis (``rest`` whole on every device), as a
+    :func:`jax.shard_map`; the result's leading axis is split the same way.
+
+    Unlike :func:`spread`, nothing is decided across devices: a data-dependent loop in
+    ``fn`` (the auto-reset's, sized by the finished envs) runs as many iterations on each
+    device as that device's slice needs. Leaves with no elements (an ``mjx.Data``'s
+    contact and constraint arrays of a model without contacts) do not cross the
+    ``shard_map``'s boundary: they are made as zeros of their shape on each side (XLA's CPU
+    compiler in jax 0.11.2 crashes on a ``shard_map`` whose operands or results mix empty
+    and non-empty arrays; benchmarks/NOTES.md).
+    """
+    first, second, rest = args
+    shards = mesh.size
+    leaves, tree = jax.tree.flatten((first, second, rest))
+    num_split = len(jax.tree.leaves((first, second)))
+    kept = [i for i, x in enumerate(leaves) if x.size]
+    split, whole = PartitionSpec(ENV_AXIS), PartitionSpec()
+    specs = [split if i < num_split else whole for i in kept]
+    # the result's structure and empty leaves, learnt while fn is traced
+    result: list[tuple[Any, list[jax.ShapeDtypeStruct]]] = []
+
+    def local(kept_leaves: list[jax.Array]) -> list[jax.Array]:
+        full: list[Any] = list(leaves)
+        for i, x in zip(kept, kept_leaves, strict=True):
+            full[i] = x
+        for i, x in enumerate(leaves):
+            if not x.size:
+                shape = (x.shape[0] // shards, *x.shape[1:]) if i < num_split else x.shape
+                full[i] = jnp.zeros(shape, x.dtype)
+        out_leaves, out_tree = jax.tree.flatten(fn(*jax.tree.unflatten(tree, full)))
+        result.append((out_tree, [jax.ShapeDtypeStruct(y.shape, y.dtype) for y in out_leaves]))
+        return [y for y in out_leaves if y.size]
+
+    def run(kept_leaves: list[jax.Array]) -> Any:
+        # check_vma off: fn is a one-device program (its reset loop's carry mixes the
+        # device's own values with constants, which the check would ask to be cast)
+        mapped = jax.shard_map(
+            local, mesh=mesh, in_specs=(specs,), out_specs=split, check_vma=False
+        )
+        out = iter(mapped(kept_leaves))
+        out_tree, shapes = result[-1]
+        return jax.tree.unflatten(
+            out_tree,
+            [
+                next(out) if y.size else jnp.zeros((y.shape[0] * shards, *y.shape[1:]), y.dtype)
+                for y in shapes
+            ],
+        )
+
+    # jit as in spread: inlined when the caller is traced
+    return jax.jit(run)([leaves[i] for i in kept])

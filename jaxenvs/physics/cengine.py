@@ -420,6 +420,12 @@ class CEngine:
             shardy = getattr(jax.config, "jax_use_shardy_partitioner", True)
             if k == 0 or self._callback is not None or not shardy:
                 return raw(arrays, self.threads)
+            # inside a shard_map (placement.per_device) the arrays are this device's own:
+            # a plain call, with this device's share of the threads
+            mesh = jax.sharding.get_abstract_mesh()
+            manual = math.prod(mesh.shape[a] for a in mesh.manual_axes)
+            if manual > 1:
+                return raw(arrays, max(1, self.threads // manual))
             return _partitioned(raw, self.threads, k, env_in, env_out, qpos)(*arrays)
 
         @custom_vmap
