@@ -33,6 +33,7 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.extend.core
 import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
@@ -226,7 +227,7 @@ def per_device(mesh: Mesh, fn: Callable[..., Any], *args: Any) -> Any:
     kept = [i for i, x in enumerate(leaves) if x.size]
     split, whole = PartitionSpec(ENV_AXIS), PartitionSpec()
     specs = [split if i < num_split else whole for i in kept]
-    # the result's structure and empty leaves, learnt while fn is traced
+    # the result's structure and leaf shapes, learnt while fn is traced
     result: list[tuple[Any, list[jax.ShapeDtypeStruct]]] = []
 
     def local(kept_leaves: list[jax.Array]) -> list[jax.Array]:
@@ -237,9 +238,16 @@ def per_device(mesh: Mesh, fn: Callable[..., Any], *args: Any) -> Any:
             if not x.size:
                 shape = (x.shape[0] // shards, *x.shape[1:]) if i < num_split else x.shape
                 full[i] = jnp.zeros(shape, x.dtype)
-        out_leaves, out_tree = jax.tree.flatten(fn(*jax.tree.unflatten(tree, full)))
-        result.append((out_tree, [jax.ShapeDtypeStruct(y.shape, y.dtype) for y in out_leaves]))
-        return [y for y in out_leaves if y.size]
+        # fn's closed-over arrays would cross the boundary as operands too: its empty ones
+        # are made here instead (the others cross, replicated)
+        closed, out = jax.make_jaxpr(
+            lambda *a: fn(*jax.tree.unflatten(tree, a)), return_shape=True
+        )(*full)
+        consts = [c if c.size else jnp.zeros(c.shape, c.dtype) for c in closed.consts]
+        run_fn = jax.extend.core.jaxpr_as_fun(jax.extend.core.ClosedJaxpr(closed.jaxpr, consts))
+        out_leaves, out_tree = jax.tree.flatten(out)
+        result.append((out_tree, out_leaves))
+        return [y for y, s in zip(run_fn(*full), out_leaves, strict=True) if s.size]
 
     def run(kept_leaves: list[jax.Array]) -> Any:
         # check_vma off: fn is a one-device program (its reset loop's carry mixes the
