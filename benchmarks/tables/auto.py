@@ -184,6 +184,29 @@ def native_ab(recs: list[Rec]) -> Cells:
     return cells
 
 
+def per_device_ab(recs: list[Rec]) -> Cells:
+    """:func:`native_ab`'s table of two builds, with each head process's figure over the
+    ``mujoco.rollout`` (4,096 envs) it timed in the same rounds."""
+    (rec,) = recs
+    ours = [r for r in rows(rec) if r["name"] == "jaxenvs"]
+    cells = native_ab([{**rec, "rows": ours}])
+    cells[0].append("head / rollout, per round")
+    roll = {
+        (r["task"], r["build"], r["round"]): r["env_steps_per_s"]
+        for r in rows(rec)
+        if r["name"] == "mujoco.rollout"
+    }
+    for line in cells[1:]:
+        task, n = line[1], int(line[2].replace(",", ""))
+        head = sorted(
+            (r["round"], r["env_steps_per_s"])
+            for r in ours
+            if (r["task"], r["num_envs"], r["build"]) == (task, n, "head")
+        )
+        line.append(", ".join(f"{v / roll[(task, 'head', k)]:.2f}" for k, v in head))
+    return cells
+
+
 def shard_threads(recs: list[Rec]) -> Cells:
     """C per setup (host devices; each device's call with its share of the threads or all
     of them), task and batch: the median over rounds, and over the default setup."""
@@ -238,6 +261,8 @@ TABLES = {
     "native-ab": Table(("native_ab_cpu16", "native_ab_cpu2"), native_ab),
     "reset-every-step-ab": Table(("reset_every_step_ab_cpu16",), native_ab),
     "engines-sweep-cpu16-every": Table(_sweep_files("cpu16every")[:2], engines_sweep),
+    "step-per-device-ab": Table(("step_per_device_ab_cpu16",), per_device_ab),
+    "engines-sweep-cpu16-shard": Table(_sweep_files("cpu16shard"), engines_sweep),
     "engines-sweep-cpu16-pool": Table(_sweep_files("cpu16pool"), engines_sweep),
     "engines-sweep-cpu2-pool": Table(_sweep_files("cpu2pool")[:2], engines_sweep),
     "engines-cpu16-shard-threads": Table(("engines_cpu16_shard_threads",), shard_threads),
