@@ -54,6 +54,7 @@ TABLES = {
     "main-command-cpu2": Table(("main_command_cpu2",), main_command),
     "main-command-ratios-cpu2": Table(("main_command_cpu2",), main_command_ratios),
     "main-command-ratios-pool-cpu2": Table(("main_command_cpu2_pool",), main_command_ratios),
+    "main-command-ratios-video-cpu2": Table(("main_command_cpu2_video",), main_command_ratios),
     "main-command-ratios-emitters-cpu2": Table(
         ("main_command_cpu2_emitters",), main_command_ratios
     ),
