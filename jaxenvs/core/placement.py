@@ -231,13 +231,11 @@ def per_device(mesh: Mesh, fn: Callable[..., Any], *args: Any) -> Any:
     result: list[tuple[Any, list[jax.ShapeDtypeStruct]]] = []
 
     def local(kept_leaves: list[jax.Array]) -> list[jax.Array]:
-        full: list[Any] = list(leaves)
-        for i, x in zip(kept, kept_leaves, strict=True):
-            full[i] = x
-        for i, x in enumerate(leaves):
-            if not x.size:
-                shape = (x.shape[0] // shards, *x.shape[1:]) if i < num_split else x.shape
-                full[i] = jnp.zeros(shape, x.dtype)
+        given = iter(kept_leaves)
+        full = [
+            next(given) if x.size else jnp.zeros(_slice_shape(x, shards, i < num_split), x.dtype)
+            for i, x in enumerate(leaves)
+        ]
         # fn's closed-over arrays would cross the boundary as operands too: its empty ones
         # are made here instead (the others cross, replicated)
         closed, out = jax.make_jaxpr(
@@ -267,3 +265,9 @@ def per_device(mesh: Mesh, fn: Callable[..., Any], *args: Any) -> Any:
 
     # jit as in spread: inlined when the caller is traced
     return jax.jit(run)([leaves[i] for i in kept])
+
+
+def _slice_shape(x: Any, shards: int, split: bool) -> tuple[int, ...]:
+    """The shape of one device's part of ``x``: its leading axis split ``shards`` ways, or
+    whole."""
+    return (x.shape[0] // shards, *x.shape[1:]) if split else tuple(x.shape)
