@@ -192,7 +192,7 @@ def test_cli_render_random_actions(tmp_path, capsys):
     out = tmp_path / "cp.mp4"
     argv = ["render", "CartPole-v0", "--out", str(out), "--steps", "15"]
     assert main([*argv, "--width", str(W), "--height", str(H), "--seed", "3"]) == 0
-    assert "wrote" in capsys.readouterr().out
+    assert f"wrote {out} (16 frames" in capsys.readouterr().out
     frames = imageio.mimread(out)
     assert len(frames) == 16 and frames[0].shape == (H, W, 3)
 

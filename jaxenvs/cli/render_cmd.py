@@ -127,10 +127,11 @@ def run(args: argparse.Namespace) -> int:
     render.select_gl_backend()  # fail before the rollout when nothing can render
     engine_args.say(env)
     states = rollout(env, act_fn, args.steps, args.seed)
-    frames = render.render_frames(env, states, width=args.width, height=args.height, camera=camera)
+    # drawn as they are encoded: a long video is never held whole
+    frames = render.iter_frames(env, states, width=args.width, height=args.height, camera=camera)
     fps = args.fps if args.fps is not None else 1.0 / env.control_dt
     path = render.write_video(frames, args.out, fps=fps)
-    print(f"wrote {path} ({len(frames)} frames, {fps:g} fps)")
+    print(f"wrote {path} ({states.time.shape[0]} frames, {fps:g} fps)")
     return 0
 
 
