@@ -207,6 +207,29 @@ def per_device_ab(recs: list[Rec]) -> Cells:
     return cells
 
 
+def big_batch(recs: list[Rec]) -> Cells:
+    """C per process at each batch beside ``mujoco.rollout`` in the same process, and C at
+    its largest batch over rollout."""
+    (rec,) = recs
+    cells = [["process", "C envs", "C", "rollout envs", "rollout", "C / rollout"]]
+    for setup in sorted({r["setup"] for r in rows(rec)}):
+        for k in sorted({r["round"] for r in rows(rec) if r["setup"] == setup}):
+            mine = [r for r in rows(rec) if (r["setup"], r["round"]) == (setup, k)]
+            roll = next(r for r in mine if r["name"] == "mujoco.rollout")
+            for r in (r for r in mine if r["name"] == "jaxenvs"):
+                cells.append(
+                    [
+                        f"{setup}, {k}",
+                        f"{r['num_envs']:,}",
+                        rate(r["env_steps_per_s"]),
+                        f"{roll['num_envs']:,}",
+                        rate(roll["env_steps_per_s"]),
+                        f"{r['env_steps_per_s'] / roll['env_steps_per_s']:.2f}",
+                    ]
+                )
+    return cells
+
+
 def shard_threads(recs: list[Rec]) -> Cells:
     """C per setup (host devices; each device's call with its share of the threads or all
     of them), task and batch: the median over rounds, and over the default setup."""
@@ -263,6 +286,7 @@ TABLES = {
     "engines-sweep-cpu16-every": Table(_sweep_files("cpu16every")[:2], engines_sweep),
     "step-per-device-ab": Table(("step_per_device_ab_cpu16",), per_device_ab),
     "engines-sweep-cpu16-shard": Table(_sweep_files("cpu16shard"), engines_sweep),
+    "cartpole-big-batch-cpu16": Table(("cartpole_big_batch_cpu16",), big_batch),
     "engines-sweep-cpu16-pool": Table(_sweep_files("cpu16pool"), engines_sweep),
     "engines-sweep-cpu2-pool": Table(_sweep_files("cpu2pool")[:2], engines_sweep),
     "engines-cpu16-shard-threads": Table(("engines_cpu16_shard_threads",), shard_threads),
