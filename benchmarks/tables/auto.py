@@ -165,22 +165,38 @@ def emitters_ab(recs: list[Rec]) -> Cells:
     return cells
 
 
+def _by_build(
+    rec: Rec, name: str = "jaxenvs"
+) -> dict[tuple[str, int], dict[str, dict[int, float]]]:
+    """``name``'s env steps/s of an A/B record by (task, envs), build and round."""
+    got: dict[tuple[str, int], dict[str, dict[int, float]]] = {}
+    for r in rows(rec):
+        if r.get("name", "jaxenvs") == name:
+            per = got.setdefault((r["task"], r["num_envs"]), {}).setdefault(r["build"], {})
+            per[r["round"]] = r["env_steps_per_s"]
+    return got
+
+
+def _ab_line(cores: str, task: str, n: int, builds: dict[str, dict[int, float]]) -> list[str]:
+    """One line of an A/B table: each build's median, head / base and it per round."""
+    base, head = builds["base"], builds["head"]
+    mb, mh = statistics.median(base.values()), statistics.median(head.values())
+    rounds = ", ".join(f"{head[k] / base[k]:.2f}" for k in sorted(base) if k in head)
+    return [cores, task, f"{n:,}", rate(mb), rate(mh), f"{mh / mb:.2f}", rounds]
+
+
+AB_HEADER = ["cores", "task", "envs", "base", "head", "head / base", "per round"]
+
+
 def native_ab(recs: list[Rec]) -> Cells:
     """Two builds of the native engine (``benchmarks/native_ab.sh``), per task and batch:
     each build's median over its rounds, and head / base per round (alternating
     processes, so a round's pair ran side by side)."""
-    cells = [["cores", "task", "envs", "base", "head", "head / base", "per round"]]
+    cells = [list(AB_HEADER)]
     for rec in recs:
         cores = str(rec["machine"]["cores"])
-        got: dict[tuple[str, int], dict[str, dict[int, float]]] = {}
-        for r in rows(rec):
-            per = got.setdefault((r["task"], r["num_envs"]), {}).setdefault(r["build"], {})
-            per[r["round"]] = r["env_steps_per_s"]
-        for (task, n), builds in sorted(got.items()):
-            base, head = builds["base"], builds["head"]
-            mb, mh = statistics.median(base.values()), statistics.median(head.values())
-            rounds = ", ".join(f"{head[k] / base[k]:.2f}" for k in sorted(base) if k in head)
-            cells.append([cores, task, f"{n:,}", rate(mb), rate(mh), f"{mh / mb:.2f}", rounds])
+        for (task, n), builds in sorted(_by_build(rec).items()):
+            cells.append(_ab_line(cores, task, n, builds))
     return cells
 
 
@@ -188,22 +204,18 @@ def per_device_ab(recs: list[Rec]) -> Cells:
     """:func:`native_ab`'s table of two builds, with each head process's figure over the
     ``mujoco.rollout`` (4,096 envs) it timed in the same rounds."""
     (rec,) = recs
-    ours = [r for r in rows(rec) if r["name"] == "jaxenvs"]
-    cells = native_ab([{**rec, "rows": ours}])
-    cells[0].append("head / rollout, per round")
+    cores = str(rec["machine"]["cores"])
     roll = {
-        (r["task"], r["build"], r["round"]): r["env_steps_per_s"]
-        for r in rows(rec)
-        if r["name"] == "mujoco.rollout"
+        (task, build, k): v
+        for (task, _), builds in _by_build(rec, "mujoco.rollout").items()
+        for build, per in builds.items()
+        for k, v in per.items()
     }
-    for line in cells[1:]:
-        task, n = line[1], int(line[2].replace(",", ""))
-        head = sorted(
-            (r["round"], r["env_steps_per_s"])
-            for r in ours
-            if (r["task"], r["num_envs"], r["build"]) == (task, n, "head")
-        )
-        line.append(", ".join(f"{v / roll[(task, 'head', k)]:.2f}" for k, v in head))
+    cells = [[*AB_HEADER, "head / rollout, per round"]]
+    for (task, n), builds in sorted(_by_build(rec).items()):
+        head = builds["head"]
+        per_round = ", ".join(f"{head[k] / roll[(task, 'head', k)]:.2f}" for k in sorted(head))
+        cells.append([*_ab_line(cores, task, n, builds), per_round])
     return cells
 
 
