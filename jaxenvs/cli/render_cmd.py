@@ -137,8 +137,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _render_log(args: argparse.Namespace, camera: str | int | None) -> int:
     """The video of a deploy log: one frame per logged pose, at the control rate."""
-    import numpy as np
-
     import jaxenvs
     from jaxenvs import render
     from jaxenvs.deploy.log import poses, read_log
@@ -156,11 +154,12 @@ def _render_log(args: argparse.Namespace, camera: str | int | None) -> int:
     robot = env.robot  # type: ignore[union-attr]
     encoders = {n: robot.joints[robot.sensors[n].joint].qpos for n in robot.encoders}
     qpos, mocap = poses(messages, env.sim.mj_model, encoders)
-    with render.Renderer(env, args.width, args.height, camera) as renderer:
-        frames = np.stack(
-            [renderer.frame(q, None if mocap is None else mocap[t]) for t, q in enumerate(qpos)]
-        )
     fps = args.fps if args.fps is not None else 1.0 / env.control_dt
-    path = render.write_video(frames, args.out, fps=fps)
-    print(f"wrote {path} ({len(frames)} frames of {args.log}, {fps:g} fps)")
+    with render.Renderer(env, args.width, args.height, camera) as renderer:
+        # drawn as they are encoded, as a rollout's video is
+        frames = (
+            renderer.frame(q, None if mocap is None else mocap[t]) for t, q in enumerate(qpos)
+        )
+        path = render.write_video(frames, args.out, fps=fps)
+    print(f"wrote {path} ({len(qpos)} frames of {args.log}, {fps:g} fps)")
     return 0

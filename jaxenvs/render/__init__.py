@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import importlib
+import itertools
 import os
 import re
 import subprocess
@@ -447,8 +448,7 @@ def _encode_mp4(path: str, frames: Iterator[np.ndarray], fps: float) -> None:
         broken = False
         try:
             try:
-                proc.stdin.write(np.ascontiguousarray(first).tobytes())
-                for frame in frames:
+                for frame in itertools.chain((first,), frames):
                     proc.stdin.write(np.ascontiguousarray(frame).tobytes())
             except BrokenPipeError:  # ffmpeg quit early: its exit status and log say why
                 broken = True
