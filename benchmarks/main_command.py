@@ -10,7 +10,8 @@ without video (cold, warm) closes each round. Rows: one per process; the record'
 holds the medians over rounds and the ratios ours / SB3. ``--xla-defaults`` adds, after
 each of our commands, the same command with jaxenvs' XLA options emptied
 (``jaxenvs.core.xla.COMPILER_OPTIONS = {}``: XLA's own defaults), cold and warm
-(rows ``<which>_xla_defaults``).
+(rows ``<which>_xla_defaults``). ``--sb3-defaults`` adds, after SB3's row, SB3's PPO with its own
+default hyperparameters (one env; row ``sb3_defaults``), timed the same way.
 
 SB3's hyperparameters are RL Baselines3 Zoo's tuned ones for CartPole-v1 (8 envs,
 n_steps 32, batch 256, 20 epochs, gamma 0.98, GAE lambda 0.8, linearly decayed learning
@@ -33,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 import results_io
-from sb3_zoo import zoo_cartpole_ppo
+from sb3_zoo import default_cartpole_ppo, zoo_cartpole_ppo
 
 COMMANDS = (
     ("main", ["train", "CartPole-v0", "--algo", "ppo"]),
@@ -72,8 +73,9 @@ def _run(args: list[str], out: Path, cache: str, xla_defaults: bool = False) -> 
     }
 
 
-def sb3_job(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
-    """SB3's PPO on CartPole-v1 until solved (this process's side of the SB3 row)."""
+def sb3_job(seed: int, max_steps: int, check_every: int, defaults: bool) -> dict[str, Any]:
+    """SB3's PPO on CartPole-v1 until solved (this process's side of an SB3 row): the Zoo's
+    hyperparameters, or SB3's own ``defaults``."""
     import gymnasium
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.evaluation import evaluate_policy
@@ -96,17 +98,18 @@ def sb3_job(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
             self.result["env_steps"] = self.num_timesteps
             return mean < THRESHOLD
 
-    model = zoo_cartpole_ppo(seed)
+    model = default_cartpole_ppo(seed) if defaults else zoo_cartpole_ppo(seed)
     callback = Solved()
     model.learn(total_timesteps=max_steps, callback=callback)
     return callback.result
 
 
-def _run_sb3(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
+def _run_sb3(seed: int, max_steps: int, check_every: int, defaults: bool) -> dict[str, Any]:
     script = Path(__file__).resolve()
+    job = ["--sb3-job", str(seed), str(max_steps), str(check_every)]
     start = time.perf_counter()
     done = subprocess.run(
-        [sys.executable, str(script), "--sb3-job", str(seed), str(max_steps), str(check_every)],
+        [sys.executable, str(script), *job, *(["--sb3-defaults"] if defaults else [])],
         check=True,
         capture_output=True,
         text=True,
@@ -118,15 +121,22 @@ def _run_sb3(seed: int, max_steps: int, check_every: int) -> dict[str, Any]:
 
 
 def _medians(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Median whole-process seconds of each kind of row, and ours / SB3."""
+    """Median whole-process seconds of each kind of row, and ours / SB3 (Zoo, and defaults
+    where run)."""
     groups: dict[str, list[float]] = {}
     for r in rows:
         groups.setdefault(f"{r['which']}_{r['run']}", []).append(r["whole_command_s"])
     med = {k: round(statistics.median(v), 2) for k, v in groups.items()}
-    sb3 = med.get("sb3_0")
     ratios = {}
-    if sb3:
-        ratios = {f"{k}_over_sb3": round(v / sb3, 3) for k, v in med.items() if k != "sb3_0"}
+    for ref, suffix in (("sb3_0", "sb3"), ("sb3_defaults_0", "sb3_defaults")):
+        if med.get(ref):
+            ratios.update(
+                {
+                    f"{k}_over_{suffix}": round(v / med[ref], 3)
+                    for k, v in med.items()
+                    if not k.startswith("sb3")
+                }
+            )
     return {"median_whole_command_s": med, "ratios": ratios}
 
 
@@ -142,10 +152,13 @@ def main() -> None:
     parser.add_argument("--sb3-check-every", type=int, default=10_000)
     parser.add_argument("--sb3-job", nargs=3, type=int, help=argparse.SUPPRESS)
     parser.add_argument("--xla-defaults", action="store_true", help="also with XLA's defaults")
+    parser.add_argument(
+        "--sb3-defaults", action="store_true", help="also SB3 with its default hyperparameters"
+    )
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
     if args.sb3_job:
-        print(json.dumps(sb3_job(*args.sb3_job)), flush=True)
+        print(json.dumps(sb3_job(*args.sb3_job, args.sb3_defaults)), flush=True)
         return
     rows, loads = [], [_load()]
     for k in range(args.rounds):
@@ -159,9 +172,13 @@ def main() -> None:
                         head = {"command": "jaxenvs " + " ".join(command), "which": which}
                         rows.append({**head, "run": i, **row, "round": k})
                         print(rows[-1], flush=True)
-            if name == "main":
-                row = _run_sb3(k, args.sb3_max_steps, args.sb3_check_every)
-                rows.append({"command": SB3_COMMAND, "which": "sb3", "run": 0, **row, "round": k})
+            if name != "main":
+                continue
+            for which in ("sb3", "sb3_defaults") if args.sb3_defaults else ("sb3",):
+                defaults = which == "sb3_defaults"
+                row = _run_sb3(k, args.sb3_max_steps, args.sb3_check_every, defaults)
+                said = SB3_COMMAND + (", SB3's default hyperparameters" if defaults else "")
+                rows.append({"command": said, "which": which, "run": 0, **row, "round": k})
                 print(rows[-1], flush=True)
         loads.append(_load())
     extra = _medians(rows)
@@ -171,7 +188,9 @@ def main() -> None:
         notes = (
             f"{args.rounds} interleaved rounds on a shared 2-core machine; load average "
             f"(1/5/15 min) before and after each round: {'; '.join(loads)}. SB3: RL "
-            "Baselines3 Zoo's CartPole-v1 PPO hyperparameters, seed = round, greedy "
+            "Baselines3 Zoo's CartPole-v1 PPO hyperparameters"
+            + (" (sb3_defaults: SB3's own defaults, one env)" if args.sb3_defaults else "")
+            + ", seed = round, greedy "
             f"20-episode eval every {args.sb3_check_every} steps inside the timed process."
         )
         rec = results_io.record(args.json, title, rows, notes=notes, extra=extra)

@@ -1,5 +1,6 @@
 """Stable-Baselines3's PPO on Gymnasium's CartPole-v1 with RL Baselines3 Zoo's tuned
-hyperparameters: the training-speed peer of ``training_speed.py`` and ``main_command.py``.
+hyperparameters (or SB3's own defaults): the training-speed peer of ``training_speed.py``
+and ``main_command.py``.
 
 Imports only SB3 (and what it needs), so a process timing SB3 pays for nothing else."""
 
@@ -29,3 +30,12 @@ def zoo_cartpole_ppo(seed: int) -> Any:
         device="cpu",
         verbose=0,
     )
+
+
+def default_cartpole_ppo(seed: int) -> Any:
+    """A fresh ``stable_baselines3.PPO`` on one CartPole-v1 env with SB3's own defaults (what
+    ``PPO("MlpPolicy", "CartPole-v1")`` trains with: n_steps 2048, batch 64, 10 epochs,
+    learning rate 3e-4), on the CPU."""
+    from stable_baselines3 import PPO
+
+    return PPO("MlpPolicy", "CartPole-v1", seed=seed, device="cpu", verbose=0)

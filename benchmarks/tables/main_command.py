@@ -9,7 +9,7 @@ def main_command(recs: list[Rec]) -> Cells:
     (rec,) = recs
 
     def cells(r: Row) -> list[str]:
-        sb3 = r["which"] == "sb3"
+        sb3 = r["which"].startswith("sb3")
         ret = r["eval_mean_return"]
         xla = ", XLA's defaults" if r["which"].endswith("_xla_defaults") else ""
         return [
@@ -28,10 +28,11 @@ def main_command(recs: list[Rec]) -> Cells:
 
 
 def main_command_ratios(recs: list[Rec]) -> Cells:
-    """Median whole-process seconds over the rounds, and each as a multiple of SB3's."""
+    """Median whole-process seconds over the rounds, and each as a multiple of SB3's (and of
+    SB3's with its default hyperparameters, where the record has that row)."""
     (rec,) = recs
     med = rec["extra"]["median_whole_command_s"]
-    sb3 = med["sb3_0"]
+    sb3, sb3_defaults = med["sb3_0"], med.get("sb3_defaults_0")
     names = {
         "main_0": ("`jaxenvs train CartPole-v0 --algo ppo`, cold", "<= 0.25x"),
         "main_1": ("`jaxenvs train CartPole-v0 --algo ppo`, warm", "<= 0.12x"),
@@ -42,11 +43,16 @@ def main_command_ratios(recs: list[Rec]) -> Cells:
         "c_no_video_xla_defaults_0": ("`--physics c --no-video`, XLA's defaults, cold", ""),
         "c_no_video_xla_defaults_1": ("`--physics c --no-video`, XLA's defaults, warm", ""),
         "sb3_0": ("SB3 PPO, CartPole-v1 to a greedy 500", ""),
+        "sb3_defaults_0": ("the same with SB3's default hyperparameters (one env)", ""),
     }
-    rows = [["run", "median whole process", "/ SB3", "target"]]
+    head = ["run", "median whole process", "/ SB3"]
+    rows = [[*head, "/ SB3 defaults", "target"] if sb3_defaults else [*head, "target"]]
     for key, (what, bar) in names.items():
         if key in med:
-            rows.append([what, secs(med[key]), f"{med[key] / sb3:.2f}x", bar])
+            row = [what, secs(med[key]), f"{med[key] / sb3:.2f}x"]
+            if sb3_defaults:
+                row.append(f"{med[key] / sb3_defaults:.2f}x")
+            rows.append([*row, bar])
     return rows
 
 
@@ -57,5 +63,8 @@ TABLES = {
     "main-command-ratios-video-cpu2": Table(("main_command_cpu2_video",), main_command_ratios),
     "main-command-ratios-emitters-cpu2": Table(
         ("main_command_cpu2_emitters",), main_command_ratios
+    ),
+    "main-command-ratios-sb3-defaults-cpu2": Table(
+        ("main_command_cpu2_sb3_defaults",), main_command_ratios
     ),
 }
