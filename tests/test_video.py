@@ -9,9 +9,11 @@ refusal, which the writer meets as a broken pipe).
 
 from __future__ import annotations
 
+import gc
 import json
 import stat
 import sys
+import time
 import warnings
 
 import numpy as np
@@ -120,6 +122,62 @@ def test_a_bad_frame_part_way_stops_the_encoder_and_writes_nothing(tmp_path, bad
         render.write_video(iter(stream), target, fps=25)
     assert target.read_bytes() == b"old video"
     assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]
+
+
+def test_the_callers_frame_generator_is_closed_when_a_write_fails(tmp_path):
+    # a generator drawing frames holds a renderer (a GL context) until it is closed; the
+    # error's traceback, kept here, would otherwise keep it open
+    closed: list[int] = []
+
+    def frames(bad_at):
+        try:
+            for t in range(5):
+                yield np.zeros((49 if t == bad_at else 48, 64, 3), np.uint8)
+        finally:
+            closed.append(bad_at)
+
+    with pytest.raises(ValueError, match="frame 2") as part_way:
+        render.write_video(frames(bad_at=2), tmp_path / "v.mp4", fps=25)
+    with pytest.raises(ValueError, match="even width and height") as first:
+        render.write_video(frames(bad_at=0), tmp_path / "v.mp4", fps=25)
+    assert closed == [2, 0]
+    assert part_way.value is not None and first.value is not None
+
+
+def test_an_encoder_gone_before_the_frames_fail_leaves_no_pipe_open(tmp_path, monkeypatch):
+    gone = tmp_path / "gone"
+    exe = tmp_path / "fake-ffmpeg"
+    exe.write_text(f"#!/bin/sh\ntouch {gone}\nexit 3\n")
+    exe.chmod(exe.stat().st_mode | stat.S_IXUSR)
+    monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(exe))
+
+    def frames():
+        yield FRAMES[0]
+        deadline = time.monotonic() + 30
+        while not gone.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.2)  # the encoder has exited by now
+        raise RuntimeError("the renderer died")
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(RuntimeError, match="the renderer died"):
+            render.write_video(frames(), tmp_path / "v.mp4", fps=25)
+        gc.collect()
+    assert gone.exists()
+    assert not [w for w in caught if issubclass(w.category, ResourceWarning)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fake-ffmpeg", "gone"]
+
+
+def test_a_jax_array_of_frames_is_taken_whole(tmp_path):
+    import jax.numpy as jnp
+
+    frames = jnp.asarray(FRAMES)
+    assert render.write_video(frames, tmp_path / "j.mp4", fps=25).read_bytes() == (
+        render.write_video(FRAMES, tmp_path / "n.mp4", fps=25).read_bytes()
+    )
+    with pytest.raises(ValueError, match=r"\(T, H, W, 3\) with T > 0, got \(48, 64, 3\)"):
+        render.write_video(frames[0], tmp_path / "one.mp4", fps=25)
 
 
 def test_an_empty_stream_is_refused(tmp_path):

@@ -371,24 +371,40 @@ def write_video(
     path = check_video_path(path)
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
-    first, stream = _frame_stream(frames)
-    check_video_size(path, first.shape[1], first.shape[0])
-    try:
-        with files.atomic_path(path) as tmp:
-            _mimwrite(imageio, str(tmp), stream, path.suffix.lower(), fps)
-    except VideoError as err:
-        raise VideoError(f"cannot write {path}: {err}") from None
+    with _frame_stream(frames) as (first, stream):
+        check_video_size(path, first.shape[1], first.shape[0])
+        try:
+            with files.atomic_path(path) as tmp:
+                _mimwrite(imageio, str(tmp), stream, path.suffix.lower(), fps)
+        except VideoError as err:
+            raise VideoError(f"cannot write {path}: {err}") from None
     return path
 
 
+@contextlib.contextmanager
 def _frame_stream(
     frames: np.ndarray | Iterable[np.ndarray],
-) -> tuple[np.ndarray, Iterator[np.ndarray]]:
+) -> Iterator[tuple[np.ndarray, Iterator[np.ndarray]]]:
     """The first frame and an iterator over every frame (the first included), each checked
-    against the first's shape and dtype as it is taken; ValueError for a bad first frame."""
-    if isinstance(frames, np.ndarray) and frames.ndim != 4:
-        raise ValueError(f"expected frames of shape (T, H, W, 3) with T > 0, got {frames.shape}")
+    against the first's shape and dtype as it is taken; ValueError for a bad first frame.
+    An array (a JAX one too) is taken whole, at once. On leaving, the caller's iterator is
+    closed, whatever happened (a frame generator holding a renderer lets its GL context
+    go then, not when it is garbage-collected)."""
+    if hasattr(frames, "__array__"):
+        frames = np.asarray(frames)
+        if frames.ndim != 4:
+            shape = frames.shape
+            raise ValueError(f"expected frames of shape (T, H, W, 3) with T > 0, got {shape}")
     it = iter(frames)
+    try:
+        yield _first_and_rest(it)
+    finally:
+        close = getattr(it, "close", None)
+        if close is not None:
+            close()
+
+
+def _first_and_rest(it: Iterator[np.ndarray]) -> tuple[np.ndarray, Iterator[np.ndarray]]:
     first = next(it, None)
     if first is None:
         raise ValueError("expected frames of shape (T, H, W, 3) with T > 0, got no frame")
@@ -459,8 +475,8 @@ def _encode_mp4(path: str, frames: Iterator[np.ndarray], fps: float) -> None:
             if proc.poll() is None:  # a frame could not be taken: stop the encoder
                 proc.kill()
                 proc.wait()
-                with contextlib.suppress(BrokenPipeError):
-                    proc.stdin.close()
+            with contextlib.suppress(OSError):  # closed above, or a pipe ffmpeg left
+                proc.stdin.close()
         if status != 0 or broken:
             log.seek(0)
             reason = first_error(log.read().decode(errors="replace"))
