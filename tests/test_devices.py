@@ -29,6 +29,7 @@ _SCRIPT = textwrap.dedent(
     import jax, jax.numpy as jnp, numpy as np
     import jaxenvs
     from jaxenvs.actions import random_actions
+    from jaxenvs.core import placement
 
     out = sys.argv[1]
     res, arrays = {"devices": jax.local_device_count()}, {}
@@ -90,6 +91,14 @@ _SCRIPT = textwrap.dedent(
     _batch.reset_slots, _batch.steps_per_device = compact, per_device
     # ... and a task with c_envs_per_device=None (the hexapod's) stays on one device
     res["c_walker_big"] = jaxenvs.make("HexapodWalk-v0", num_envs=2048, physics="c").devices
+    # a program per device over a param given as a Python float (made an array, as jit does)
+    from jax.sharding import Mesh
+    from jaxenvs.core.placement import ENV_AXIS
+    y, e = placement.per_device(
+        Mesh(np.array(jax.devices()), (ENV_AXIS,)),
+        lambda s, a, p: (s * p["k"] + a, jnp.zeros((s.shape[0], 0))),
+        jnp.arange(8.0), jnp.ones(8), {"k": 2.0})
+    res["per_device_float"] = [np.asarray(y).tolist(), list(e.shape), len(y.sharding.device_set)]
     arrays["c_2"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=2))[1][0]
     arrays["c_1"] = rollout(jaxenvs.make("CartPole-v0", num_envs=8, physics="c", devices=1))[1][0]
     # the Gymnasium vector env is spread as well, with the same numbers
@@ -138,6 +147,7 @@ def test_a_c_step_per_device_resets_like_one_partitioned_program(four_devices):
     assert [res[f"reset_devices_{t}"] for t in tags] == [4, 4, 4]
     assert [res[f"reset_shards_{t}"] for t in tags] == [4, 4, 4]
     assert not res["reset_all_reduce_per_device"]
+    assert res["per_device_float"] == [[2.0 * k + 1 for k in range(8)], [8, 0], 4]
     assert res["reset_all_reduce_compact"]  # the partitioned loop's trip count
     assert arrays["reset_compact_done"].sum() > 60  # resets happened, on every step or so
     for tag in ("per_device", "whole"):

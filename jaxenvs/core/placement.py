@@ -223,6 +223,8 @@ def per_device(mesh: Mesh, fn: Callable[..., Any], *args: Any) -> Any:
     first, second, rest = args
     shards = mesh.size
     leaves, tree = jax.tree.flatten((first, second, rest))
+    # Python scalars among the leaves (a param given as a float) become arrays, as under jit
+    leaves = [x if isinstance(x, jax.Array | np.ndarray) else jnp.asarray(x) for x in leaves]
     num_split = len(jax.tree.leaves((first, second)))
     kept = [i for i, x in enumerate(leaves) if x.size]
     split, whole = PartitionSpec(ENV_AXIS), PartitionSpec()
