@@ -19,10 +19,13 @@ persistent cache) when it was built and loads; otherwise a ``jax.pure_callback``
 **Devices.** The call is partitioned along the batch (env) axes
 (:func:`jax.experimental.custom_partitioning`): when a batch's state is split over several
 host devices (:mod:`jaxenvs.core.placement`), each device steps its own slice with
-``threads // devices`` threads (at least one), bit for bit as on one device. The callback
-path is not partitioned (its call sees the whole batch). Such a multi-device program names
-its partitioning by a key of this process, so JAX's persistent cache does not carry it to
-another process; a one-device program is unchanged.
+``threads // devices`` threads (at least one), bit for bit as on one device. Inside a
+``shard_map`` (:func:`jaxenvs.core.placement.per_device`, a program per device) the call is
+a plain one over the device's own slice, with that device's share of the threads; the
+callback path is never partitioned, so there too each device's callback sees only its
+slice, while in one partitioned program it sees the whole batch. Such a partitioned program
+names its partitioning by a key of this process, so JAX's persistent cache does not carry
+it to another process; a one-device program is unchanged.
 
 **Fields.** A step reads the state MJX's step reads (:data:`INPUTS`: ``time``, ``qpos``,
 ``qvel``, ``act``, ``qacc_warmstart``, ``ctrl``, applied forces, ``eq_active``, mocap poses,
@@ -396,8 +399,11 @@ class CEngine:
         broadcasts unbatched operands, as ``vmap_method="broadcast_all"`` does). A call
         with batch axes is a :func:`jax.experimental.custom_partitioning` op: when its
         operands are split along those axes over several devices, each device steps its
-        own slice with ``threads // shards`` threads, and per-env dims stay whole. On the
-        callback path the call is not partitioned: it sees the whole batch.
+        own slice with ``threads // shards`` threads, and per-env dims stay whole. Inside a
+        ``shard_map`` (manual mesh axes) the operands are already one device's slice: a
+        plain call with ``threads // devices`` threads. On the callback path the call is
+        never partitioned: it sees whatever its program holds (the whole batch in a
+        partitioned program, the device's slice inside a ``shard_map``).
         """
         lay = self.layout
         env_in = [lay.shapes[n] for n in lay.inputs] + [self.field_shape(n) for n in names]
