@@ -6,7 +6,7 @@ from __future__ import annotations
 import statistics
 from typing import Any
 
-from .common import Cells, Rec, Table, by_engine, rate, rows, secs
+from .common import Cells, Rec, Table, by_engine, one, rate, rows, secs
 
 
 def engines_sweep(recs: list[Rec]) -> Cells:
@@ -202,33 +202,31 @@ def native_ab(recs: list[Rec]) -> Cells:
 
 def per_device_ab(recs: list[Rec]) -> Cells:
     """:func:`native_ab`'s table of two builds, with each head process's figure over the
-    ``mujoco.rollout`` (4,096 envs) it timed in the same rounds."""
+    one ``mujoco.rollout`` row of its task timed in the same round by the head build."""
     (rec,) = recs
     cores = str(rec["machine"]["cores"])
-    roll = {
-        (task, build, k): v
-        for (task, _), builds in _by_build(rec, "mujoco.rollout").items()
-        for build, per in builds.items()
-        for k, v in per.items()
-    }
     cells = [[*AB_HEADER, "head / rollout, per round"]]
     for (task, n), builds in sorted(_by_build(rec).items()):
         head = builds["head"]
-        per_round = ", ".join(f"{head[k] / roll[(task, 'head', k)]:.2f}" for k in sorted(head))
+        roll = {
+            k: one(rec, task=task, build="head", round=k, name="mujoco.rollout")
+            for k in sorted(head)
+        }
+        per_round = ", ".join(f"{head[k] / roll[k]['env_steps_per_s']:.2f}" for k in roll)
         cells.append([*_ab_line(cores, task, n, builds), per_round])
     return cells
 
 
 def big_batch(recs: list[Rec]) -> Cells:
-    """C per process at each batch beside ``mujoco.rollout`` in the same process, and C at
-    its largest batch over rollout."""
+    """C per process at each batch beside the one ``mujoco.rollout`` row of the same
+    process, and C over rollout."""
     (rec,) = recs
     cells = [["process", "C envs", "C", "rollout envs", "rollout", "C / rollout"]]
     for setup in sorted({r["setup"] for r in rows(rec)}):
         for k in sorted({r["round"] for r in rows(rec) if r["setup"] == setup}):
             mine = [r for r in rows(rec) if (r["setup"], r["round"]) == (setup, k)]
-            roll = next(r for r in mine if r["name"] == "mujoco.rollout")
-            for r in (r for r in mine if r["name"] == "jaxenvs"):
+            roll = one(rec, setup=setup, round=k, name="mujoco.rollout")
+            for r in (r for r in mine if r.get("name", "jaxenvs") == "jaxenvs"):
                 cells.append(
                     [
                         f"{setup}, {k}",
