@@ -353,18 +353,19 @@ def write_video(
 ) -> Path:
     """Write ``frames`` to ``path`` (.mp4 via ffmpeg, or .gif).
 
-    ``frames`` is a ``(T, H, W, 3)`` uint8 array or an iterable of ``(H, W, 3)`` uint8
-    frames (such as :func:`iter_frames`), which an .mp4 encodes as they come: drawing
-    and encoding overlap, and the video is never held whole in memory. Each frame must
-    have the first one's shape and dtype; a bad first frame is refused before the encoder
-    starts.
+    ``frames`` is a ``(T, H, W, 3)`` uint8 array (NumPy or JAX, taken whole) or an iterable
+    of ``(H, W, 3)`` uint8 frames (such as :func:`iter_frames`), which an .mp4 encodes as
+    they come: drawing and encoding overlap, and the video is never held whole in memory.
+    Each frame must have the first one's shape and dtype; a bad first frame is refused
+    before the encoder starts. An iterator with a ``close`` (a generator) is closed when
+    this returns or raises.
 
     The file appears atomically and only when the encoder succeeded: it is written next
     to ``path`` under a temporary name and renamed into place once ffmpeg has exited
     with status 0, so a reader never sees a half-written video and a failed write
     leaves ``path`` as it was. A failing encoder (a full disk, a size it refuses) raises
-    :class:`VideoError` naming ``path`` with ffmpeg's first error line (the cause). An .mp4 needs an
-    even frame width and height (:func:`check_video_size`).
+    :class:`VideoError` naming ``path`` with ffmpeg's first error line (the cause). An
+    .mp4 needs an even frame width and height (:func:`check_video_size`).
     """
     import imageio.v2 as imageio
 
