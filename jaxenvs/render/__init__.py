@@ -21,7 +21,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import importlib
-import itertools
 import os
 import re
 import subprocess
@@ -376,7 +375,7 @@ def write_video(
         check_video_size(path, first.shape[1], first.shape[0])
         try:
             with files.atomic_path(path) as tmp:
-                _mimwrite(imageio, str(tmp), stream, path.suffix.lower(), fps)
+                _mimwrite(imageio, str(tmp), stream, first.shape, path.suffix.lower(), fps)
         except VideoError as err:
             raise VideoError(f"cannot write {path}: {err}") from None
     return path
@@ -430,10 +429,15 @@ def _first_and_rest(it: Iterator[np.ndarray]) -> tuple[np.ndarray, Iterator[np.n
 
 
 def _mimwrite(
-    imageio: Any, tmp: str, frames: Iterator[np.ndarray], suffix: str, fps: float
+    imageio: Any,
+    tmp: str,
+    frames: Iterator[np.ndarray],
+    shape: tuple[int, ...],
+    suffix: str,
+    fps: float,
 ) -> None:
     if suffix == ".mp4":
-        _encode_mp4(tmp, frames, fps)
+        _encode_mp4(tmp, frames, shape, fps)
     else:
         imageio.mimwrite(tmp, list(frames), format="GIF", duration=1000.0 / fps, loop=0)
 
@@ -450,22 +454,24 @@ def ffmpeg_command(path: str, width: int, height: int, fps: float) -> list[str]:
     return [exe, "-y", "-v", "error", *raw, "-r", f"{fps:.6g}", "-i", "-", *out, path]
 
 
-def _encode_mp4(path: str, frames: Iterator[np.ndarray], fps: float) -> None:
-    """Pipe ``frames`` through ffmpeg into ``path`` as they come; :class:`VideoError` with
+def _encode_mp4(
+    path: str, frames: Iterator[np.ndarray], shape: tuple[int, ...], fps: float
+) -> None:
+    """Pipe ``frames`` (each of ``shape``, ``(H, W, 3)``) through ffmpeg into ``path`` as
+    they come; :class:`VideoError` with
     ffmpeg's first error line unless it exits with status 0 having read every frame. An
     error raised while taking a frame stops ffmpeg and propagates."""
     with tempfile.TemporaryFile() as log, warnings.catch_warnings():
         # JAX's notice about fork(); the encoder (and its probe for a working ffmpeg) is a
         # plain exec
         warnings.filterwarnings("ignore", message="os.fork", category=RuntimeWarning)
-        first = next(frames)
-        cmd = ffmpeg_command(path, first.shape[1], first.shape[0], fps)
+        cmd = ffmpeg_command(path, shape[1], shape[0], fps)
         proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=log)
         assert proc.stdin is not None
         broken = False
         try:
             try:
-                for frame in itertools.chain((first,), frames):
+                for frame in frames:
                     proc.stdin.write(np.ascontiguousarray(frame).tobytes())
             except BrokenPipeError:  # ffmpeg quit early: its exit status and log say why
                 broken = True
