@@ -16,10 +16,14 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+# the tests live in a folder per layer; their shared helpers (engines.py, requires.py, ...)
+# sit here, importable from every folder
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 os.environ.setdefault("MUJOCO_GL", "egl")
 # one persistent compile cache for the whole test session, in a fresh directory (never
 # ~/.cache): modules that build the same programs (an env's step, a trainer's chunk)

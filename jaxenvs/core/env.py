@@ -149,7 +149,7 @@ class Env(abc.ABC, Generic[ConfigT]):
     scan_unroll: int = 1
 
     #: the engine ``physics="auto"`` picks on a CPU. ``"mjx"`` unless a task's engine
-    #: parity and speed were measured (our tasks: ``tests/test_cengine.py``,
+    #: parity and speed were measured (our tasks: ``tests/physics/test_cengine.py``,
     #: benchmarks/RESULTS.md).
     cpu_physics: str = "mjx"
 

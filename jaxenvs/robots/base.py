@@ -23,7 +23,7 @@ one substep older than ``qpos``/``qvel``. :meth:`Robot.sense` therefore evaluate
 sensor that is a function of the state (``jointpos``, ``jointvel``, and ``framepos``,
 ``framequat``, ``gyro``, ``velocimeter`` of a site at a free-floating body's origin with
 the body's orientation) from ``qpos``/``qvel`` with ``jax.numpy``: the value MuJoCo's
-sensor has after ``mj_forward`` at that state (``tests/test_robots.py`` checks it for
+sensor has after ``mj_forward`` at that state (``tests/robots/test_robots.py`` checks it for
 every robot on random states). Every other sensor (``accelerometer``, forces, touch) is
 read from ``sensordata`` and is ONE SUBSTEP OLD; it is available only from a robot built
 with ``sensordata=True``, whose Sim has MuJoCo evaluate the MJCF's sensors. Otherwise the

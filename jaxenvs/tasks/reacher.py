@@ -31,7 +31,7 @@
   Gymnasium runs two RK4 steps of 0.01 s). ``timestep=0.01, substeps=2`` halves the
   integration error at half the throughput.
 * Physics: each physics step is ``mjx.step`` (checked against ``mujoco.mj_step`` in
-  ``tests/test_parity.py``). The fingertip is the arm's planar kinematics of the encoder
+  ``tests/physics/test_parity.py``). The fingertip is the arm's planar kinematics of the encoder
   readings (:meth:`~jaxenvs.robots.reacher.ReacherArm.fingertip`, checked against MuJoCo's
   site position); a reset needs no kinematics pass.
 

@@ -24,7 +24,7 @@ from jaxenvs import cli, files
 from jaxenvs.run import checkpoint, loop, runner
 from jaxenvs.run.checkpoint import CheckpointError
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -29,7 +29,7 @@ from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, NumpyPolicy
 from jaxenvs.robots.interface import HostTask, SensorFrame, spec_of
 from jaxenvs.tasks.hexapod_joystick import JoystickConfig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 ACTION = 0.05  # every joint slightly off the neutral stance: the robot stands
 
 

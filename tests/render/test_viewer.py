@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from engines import TASK_LOGIC
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "pendulum"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "pendulum"
 sys.path.insert(0, str(EXAMPLE))
 
 import my_pendulum  # noqa: E402,F401  (registers MyPendulum-v0)

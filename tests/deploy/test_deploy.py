@@ -27,7 +27,7 @@ from jaxenvs.deploy.export import npz_bytes
 from jaxenvs.deploy.log import read_log
 from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, NumpyPolicy
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PD_GAINS = np.array([0.1, 0.2, 1.0, 0.3], np.float32)
 
 

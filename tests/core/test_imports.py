@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parent.parent / "jaxenvs"
+PACKAGE = Path(__file__).resolve().parents[2] / "jaxenvs"
 
 
 def _module_name(path: Path) -> str:

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from engines import TASK_LOGIC
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "pendulum"
 sys.path.insert(0, str(EXAMPLE))
 
