@@ -1,0 +1,1 @@
+"""Scenes: a robot on its ground (a flat floor or a terrain)."""
