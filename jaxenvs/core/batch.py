@@ -99,18 +99,48 @@ class BatchedEnv:
     config = property(lambda self: self.env.config)
     scan_unroll = property(lambda self: self.env.scan_unroll)
 
-    def fresh_starts(self, keys: jax.Array, params: Params = None) -> State:
+    def fresh_starts(self, keys: jax.Array, params: Params = None, carry: Any = None) -> State:
         """Fresh starts of every env, env i's drawn with ``keys[i]`` as a reset and the
         auto-reset draw them (with ``randomize=True`` and no ``params``, its own params
-        too); not spread over the batch's devices."""
+        too), from ``carry`` (each env's, leading axis ``num_envs``; ``None``: a new one
+        as :meth:`reset` makes); not spread over the batch's devices."""
+        if carry is None:
+            carry = jax.vmap(self.env.initial_carry, in_axes=(0, None))(keys, params)
         if self.randomize and params is None:
             # one split per env for its reset's 3 keys and its params key: the state is
             # env.reset(key, params)'s, the params drawn from split(key, 4)[3]
             split = jax.vmap(lambda k: jax.random.split(k, 4))(keys)
             params = jax.vmap(self.env.sample_params)(split[:, 3])
-            state = jax.vmap(self.env._reset_from)(split, params)
+            state = jax.vmap(self.env._reset_from)(split, params, carry)
             return state.replace(params=params)
-        return jax.vmap(self.env.reset, in_axes=(0, None))(keys, params)
+        split = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
+        return jax.vmap(self.env._reset_from, in_axes=(0, None, 0))(split, params, carry)
+
+    def next_carry(self, state: State, done: jax.Array, params: Params = None) -> Any:
+        """Each env's carry after ``state``: the task's update
+        (:meth:`~jaxenvs.core.Env.next_carry`) from the finished episode where ``done``
+        holds, unchanged elsewhere."""
+        if not jax.tree.leaves(state.carry):
+            return state.carry
+        if state.params is not None:
+            new = jax.vmap(self.env.next_carry)(state, state.params)
+        else:
+            new = jax.vmap(self.env.next_carry, in_axes=(0, None))(state, params)
+        return jax.tree.map(functools.partial(_where, done), new, state.carry)
+
+    def restart(self, state: State, mask: jax.Array, keys: jax.Array) -> State:
+        """``state`` with the envs where ``mask`` holds started afresh with their ``keys``
+        as the auto-reset starts them, each from its carry after the finished episode
+        (:meth:`next_carry`): the whole State of a new episode, reward 0, flags False and
+        a new episode's ``info`` (what a Gymnasium vector env's reset of a finished env
+        is); the other envs unchanged."""
+
+        def merge(old: State) -> State:
+            old = old.replace(carry=self.next_carry(old, mask))
+            fresh = self.fresh_starts(keys, None, old.carry)
+            return merge_starts(self.env, old, fresh, functools.partial(_where, mask), True)
+
+        return jax.lax.cond(jnp.any(mask), merge, lambda old: old, state)
 
     def reset(self, key: jax.Array, params: Params = None) -> State:
         """Reset all envs; returns a State with a leading ``num_envs`` axis."""
@@ -149,12 +179,13 @@ class BatchedEnv:
         else:
             nxt = jax.vmap(self.env.step, in_axes=(0, 0, None))(state, action, params)
         done = nxt.done
+        nxt = nxt.replace(carry=self.next_carry(nxt, done, params))
         per_row = done.shape[0] // rows
         slots = reset_slots(per_row, jax.default_backend()) if self.compact_reset else 0
 
         def reset_all(nxt: State) -> State:
-            fresh = self.fresh_starts(nxt.key, params)
-            merged = self._merge(nxt, lambda new, old: _where(done, new, old), fresh)
+            fresh = self.fresh_starts(nxt.key, params, nxt.carry)
+            merged = merge_starts(self.env, nxt, fresh, functools.partial(_where, done))
             return _zero_counters(merged, done)
 
         if slots == 0:
@@ -168,12 +199,17 @@ class BatchedEnv:
             by_row
         )
         keys = _rows(nxt.key, rows)
+        carries = jax.tree.map(lambda c: _rows(c, rows), nxt.carry)
         needed = -(-jnp.max(by_row.sum(axis=1)) // slots)
 
         def reset_chunk(c: jax.Array, state: State) -> State:
             where = jax.lax.dynamic_slice_in_dim(index, c * slots, slots, axis=1)
-            picked = jax.vmap(lambda k, i: k[jnp.minimum(i, per_row - 1)])(keys, where)
-            fresh = self.fresh_starts(picked.reshape(rows * slots, *picked.shape[2:]), params)
+
+            def pick(x: jax.Array) -> jax.Array:
+                got = jax.vmap(lambda k, i: k[jnp.minimum(i, per_row - 1)])(x, where)
+                return got.reshape(rows * slots, *got.shape[2:])
+
+            fresh = self.fresh_starts(pick(keys), params, jax.tree.map(pick, carries))
 
             def put(new: jax.Array, old: jax.Array) -> jax.Array:
                 new = new.reshape(rows, slots, *new.shape[1:])
@@ -182,25 +218,40 @@ class BatchedEnv:
                 )
                 return out.reshape(old.shape)
 
-            return self._merge(state, put, fresh)
+            return merge_starts(self.env, state, fresh, put)
 
         return _zero_counters(jax.lax.fori_loop(0, needed, reset_chunk, nxt), done)
 
-    def _merge(
-        self, nxt: State, put: Callable[[jax.Array, jax.Array], jax.Array], fresh: State
-    ) -> State:
-        """``nxt`` with its finished envs' starts taken from ``fresh`` by
-        ``put(fresh_leaf, old_leaf)`` (their episode counters: :func:`_zero_counters`)."""
-        obs, extras, time, key, new_params = jax.tree.map(
-            put,
-            (fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params),
-            (nxt.obs, nxt.extras, nxt.time, nxt.key, nxt.params),
-        )
-        data = self.env.sim.select_data(put, fresh.data, nxt.data)
-        return nxt.replace(data=data, obs=obs, extras=extras, time=time, key=key, params=new_params)
-
     def __repr__(self) -> str:
         return f"BatchedEnv({self.env!r}, num_envs={self.num_envs}, devices={self.devices})"
+
+
+def merge_starts(
+    env: Env,
+    old: State,
+    fresh: State,
+    put: Callable[[jax.Array, jax.Array], jax.Array],
+    whole: bool = False,
+) -> State:
+    """``old`` with fresh starts taken from ``fresh`` by ``put(fresh_leaf, old_leaf)``
+    (which picks, per env, the fresh leaf for the envs that start again): the one merge
+    of every auto-reset (:class:`BatchedEnv`'s step, :meth:`BatchedEnv.restart`, the
+    adapters). ``whole=False`` (an auto-reset inside a step) takes the physics, ``obs``,
+    ``extras``, ``time``, ``key``, ``params`` and ``carry`` and keeps the finished
+    transition's reward, flags and ``info``; ``whole=True`` takes every field (a new
+    episode's State)."""
+    data = env.sim.select_data(put, fresh.data, old.data)
+    if whole:
+        rest = jax.tree.map(put, fresh.replace(data=None), old.replace(data=None))
+        return rest.replace(data=data)
+    obs, extras, time, key, params, carry = jax.tree.map(
+        put,
+        (fresh.obs, fresh.extras, fresh.time, fresh.key, fresh.params, fresh.carry),
+        (old.obs, old.extras, old.time, old.key, old.params, old.carry),
+    )
+    return old.replace(
+        data=data, obs=obs, extras=extras, time=time, key=key, params=params, carry=carry
+    )
 
 
 #: a device's share of the batch from which a step resets only its finished envs

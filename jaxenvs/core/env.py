@@ -25,6 +25,10 @@ PyTree = Any
 Params = Any
 
 
+#: folded into a reset's key for the carry's draw (:meth:`Env.initial_carry`), so that
+#: the reset's other keys are those of ``split(key, 3)``
+CARRY_SALT = 0x63617279
+
 STANDARD_INFO_KEYS = (
     "episode_return",
     "episode_length",
@@ -82,6 +86,11 @@ class State(struct.PyTreeNode):
       time: int32 steps taken in the current episode.
       key: the PRNG key that drives this env's future randomness.
       params: per-env params of a randomised batched env, else ``None``.
+      carry: the task's per-env state that survives auto-resets (a curriculum level,
+        a counter of finished episodes): made by the task's ``_carry_init`` at
+        :meth:`Env.reset`, updated by its ``_carry_update`` from each finished episode
+        before the next start, read by its ``_start``; :class:`NoExtras` (no leaves)
+        for a task that keeps none.
     """
 
     data: mjx.Data
@@ -94,6 +103,7 @@ class State(struct.PyTreeNode):
     time: jax.Array
     key: jax.Array
     params: Params = None
+    carry: PyTree = None
 
     @property
     def done(self) -> jax.Array:
@@ -237,9 +247,34 @@ class Env(abc.ABC, Generic[ConfigT]):
         return self.default_params
 
     # ----------------------------------------------------------------- task hooks
-    @abc.abstractmethod
     def _init(self, key: jax.Array, params: Params) -> tuple[mjx.Data, PyTree]:
-        """The initial physics state and ``extras``, drawn from ``key``."""
+        """The initial physics state and ``extras``, drawn from ``key``. A task that keeps
+        a carry overrides :meth:`_start` instead."""
+        raise NotImplementedError(
+            f"{type(self).__name__} defines neither _init(key, params) nor "
+            "_start(key, params, carry)"
+        )
+
+    def _start(self, key: jax.Array, params: Params, carry: PyTree) -> tuple[mjx.Data, PyTree]:
+        """The initial physics state and ``extras`` of an episode started with the env's
+        ``carry``; default: :meth:`_init` (the carry is not read)."""
+        del carry
+        return self._init(key, params)
+
+    def _carry_init(self, key: jax.Array, params: Params) -> PyTree:
+        """The carry an env starts with at :meth:`reset` (``key``: its own draw, apart from
+        the reset's other keys); default: :class:`NoExtras`, no carry."""
+        del key, params
+        return NoExtras()
+
+    def _carry_update(self, carry: PyTree, final: State, params: Params) -> PyTree:
+        """The carry the next episode starts with, from the finished episode's last state
+        ``final`` (its ``data``, ``extras``, ``info`` and ``time``; ``carry`` is
+        ``final.carry``). Called by an auto-reset (:class:`~jaxenvs.core.BatchedEnv`, the
+        Gymnasium and gymnax adapters) for the envs that finished, before their fresh
+        start; default: unchanged."""
+        del final, params
+        return carry
 
     @abc.abstractmethod
     def _act(
@@ -275,19 +310,33 @@ class Env(abc.ABC, Generic[ConfigT]):
 
     # ----------------------------------------------------------------- public API
     def reset(self, key: jax.Array, params: Params = None) -> State:
-        """Start an episode from the task's initial-state distribution."""
+        """Start an episode from the task's initial-state distribution, with a new carry
+        (:meth:`_carry_init`)."""
         check_key(key, f"{type(self).__name__}.reset")
-        return self._reset_from(jax.random.split(key, 3), params)
+        return self._reset_from(jax.random.split(key, 3), params, self.initial_carry(key, params))
 
-    def _reset_from(self, keys: jax.Array, params: Params) -> State:
+    def initial_carry(self, key: jax.Array, params: Params = None) -> PyTree:
+        """The carry :meth:`reset` with ``key`` starts the env with."""
+        params = self.default_params if params is None else params
+        return self._carry_init(jax.random.fold_in(key, CARRY_SALT), params)
+
+    def next_carry(self, final: State, params: Params = None) -> PyTree:
+        """The carry the episode after ``final`` (a finished episode's last state of one
+        env) starts with: :meth:`_carry_update`'s."""
+        if params is None:
+            params = self.default_params if final.params is None else final.params
+        return self._carry_update(final.carry, final, params)
+
+    def _reset_from(self, keys: jax.Array, params: Params, carry: PyTree) -> State:
         """:meth:`reset` from ``keys``, the first 3 (at least) of ``jax.random.split(key,
-        n)``: the state's next key, the init's and the observation's. A caller that needs
-        more keys of the same ``key`` splits once (``n`` > 3) and passes them all: with
-        JAX's partitionable threefry the first 3 equal ``split(key, 3)``, so the state is
-        :meth:`reset`'s, and it costs one PRNG call (a loop XLA compiles on a CPU) less."""
+        n)``: the state's next key, the init's and the observation's, and the env's
+        ``carry``. A caller that needs more keys of the same ``key`` splits once (``n`` >
+        3) and passes them all: with JAX's partitionable threefry the first 3 equal
+        ``split(key, 3)``, so the state is :meth:`reset`'s, and it costs one PRNG call (a
+        loop XLA compiles on a CPU) less."""
         params = self.default_params if params is None else params
         key, init_key, obs_key = keys[0], keys[1], keys[2]
-        data, extras = self._init(init_key, params)
+        data, extras = self._start(init_key, params, carry)
         obs = self._observe(obs_key, data, extras, params).astype(jnp.float32)
         zero = jnp.zeros((), jnp.float32)
         info = {
@@ -310,6 +359,7 @@ class Env(abc.ABC, Generic[ConfigT]):
             extras=extras,
             time=jnp.zeros((), jnp.int32),
             key=key,
+            carry=carry,
         )
 
     def step(self, state: State, action: jax.Array, params: Params = None) -> State:

@@ -80,21 +80,10 @@ def _build_single(env: Env) -> Programs:
 
 
 def _restart(task: BatchedEnv, state: State, mask: jax.Array, keys: jax.Array) -> State:
-    """``state`` with the envs where ``mask`` holds replaced by fresh starts drawn with
-    their ``keys`` as the batched env's auto-reset draws them
-    (:meth:`~jaxenvs.core.BatchedEnv.fresh_starts`): the whole State, so reward 0, flags
-    False and a new episode's info."""
-
-    def pick(new: jax.Array, old: jax.Array) -> jax.Array:
-        return jnp.where(mask.reshape(mask.shape + (1,) * (old.ndim - 1)), new, old)
-
-    def merge(old: State) -> State:
-        fresh = task.fresh_starts(keys)
-        data = task.env.sim.select_data(pick, fresh.data, old.data)
-        rest = jax.tree.map(pick, fresh.replace(data=None), old.replace(data=None))
-        return rest.replace(data=data)
-
-    return jax.lax.cond(jnp.any(mask), merge, lambda old: old, state)
+    """``state`` with the envs where ``mask`` holds started afresh with their ``keys``, as
+    the batched env's auto-reset starts them (:meth:`~jaxenvs.core.BatchedEnv.restart`:
+    the whole State of a new episode, from each env's carry after the finished one)."""
+    return task.restart(state, mask, keys)
 
 
 def _placed(task: BatchedEnv, fn: Callable[..., State]) -> Callable[..., State]:
