@@ -186,7 +186,7 @@ def make(
 
 
 def _builtin() -> None:
-    from jaxenvs.tasks import cartpole, hexapod, hexapod_joystick, reacher
+    from jaxenvs.tasks import cartpole, hexapod, reacher
 
     register(
         "CartPole-v0",
@@ -236,8 +236,8 @@ def _builtin() -> None:
     )
     register(
         "HexapodJoystick-v0",
-        hexapod_joystick.HexapodJoystick,
-        hexapod_joystick.JoystickConfig(),
+        hexapod.HexapodJoystick,
+        hexapod.JoystickConfig(),
         "6 legs x 3 servos follow a velocity command from onboard sensors, 1000 steps",
     )
 

@@ -21,7 +21,7 @@ import io
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -45,11 +45,22 @@ def mjx_module() -> ModuleType:
     return mjx
 
 
+class SpecSource(Protocol):
+    """A model source other than a file: a scene."""
+
+    def spec(self) -> mujoco.MjSpec: ...
+
+
+#: what a Sim is compiled from: an MJCF file or a scene
+Source = str | Path | SpecSource
+
+
 class Sim:
     """One MJX world: model, timestep, substeps.
 
     Args:
-      xml: path of the MJCF file.
+      xml: path of the MJCF file, or a scene (:class:`jaxenvs.scenes.Scene`: anything
+        with ``spec()`` returning a fresh :class:`mujoco.MjSpec`).
       timestep: physics timestep in seconds (overrides the MJCF's).
       substeps: physics steps per control step.
       edit: optional function applied to the host ``MjModel`` before it is put on
@@ -60,7 +71,7 @@ class Sim:
 
     def __init__(
         self,
-        xml: str | Path,
+        xml: Source,
         timestep: float,
         substeps: int,
         edit: Callable[[mujoco.MjModel], None] | None = None,
@@ -70,13 +81,14 @@ class Sim:
             raise ValueError(f"timestep must be positive, got {timestep}")
         if substeps < 1:
             raise ValueError(f"substeps must be >= 1, got {substeps}")
-        self.xml = Path(xml)
+        #: the MJCF file or scene (:class:`jaxenvs.scenes.Scene`) the world is compiled from
+        self.source = xml
         self.edit = edit
         self.lean = lean
         if lean:
-            self.mj_model, lean_model = _full_and_lean(self.xml)
+            self.mj_model, lean_model = _full_and_lean(xml)
         else:
-            self.mj_model = lean_model = mujoco.MjModel.from_xml_path(str(self.xml))
+            self.mj_model = lean_model = _spec(xml).compile()
         self.mj_model.opt.timestep = timestep
         #: the host model the device model was made from (== ``mj_model`` unless lean)
         self.physics_mj_model = lean_model
@@ -254,7 +266,7 @@ def _fields(model: Any) -> Mapping[str, jax.Array]:
 _INERTIAL = ("body_mass", "body_inertia", "body_ipos", "body_iquat")
 
 
-def physics_model(xml: str | Path) -> mujoco.MjModel:
+def physics_model(xml: Source) -> mujoco.MjModel:
     """The MJCF at ``xml`` without cameras, lights and geoms that collide with nothing.
 
     A geom is dropped when its ``contype`` and ``conaffinity`` are both 0 and no contact
@@ -265,7 +277,7 @@ def physics_model(xml: str | Path) -> mujoco.MjModel:
     return _full_and_lean(xml)[1]
 
 
-def _full_and_lean(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjModel]:
+def _full_and_lean(xml: Source) -> tuple[mujoco.MjModel, mujoco.MjModel]:
     """The full model at ``xml`` and :func:`physics_model`'s lean copy, each compiled once."""
     full, spec = _lean_spec(xml)
     lean = spec.compile()
@@ -277,9 +289,16 @@ def _full_and_lean(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjModel]:
     return full, lean
 
 
-def _lean_spec(xml: str | Path) -> tuple[mujoco.MjModel, mujoco.MjSpec]:
+def _spec(source: Source) -> mujoco.MjSpec:
+    """A fresh spec of an MJCF file or of a scene (anything with ``spec()``)."""
+    if isinstance(source, str | Path):
+        return mujoco.MjSpec.from_file(str(source))
+    return source.spec()
+
+
+def _lean_spec(xml: Source) -> tuple[mujoco.MjModel, mujoco.MjSpec]:
     """The full model at ``xml`` and the spec of its lean copy (not yet compiled)."""
-    spec = mujoco.MjSpec.from_file(str(xml))
+    spec = _spec(xml)
     full = spec.compile()
     bodies = spec.bodies
     if len(bodies) != full.nbody:

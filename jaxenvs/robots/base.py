@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxenvs.physics.sim import Sim
+from jaxenvs.physics.sim import Sim, SpecSource
 
 Readings = dict[str, jax.Array]
 
@@ -256,18 +256,21 @@ class Robot:
         timestep: float,
         substeps: int,
         edit: Callable[[mujoco.MjModel], None] | None = None,
+        scene: SpecSource | None = None,
     ) -> Sim:
-        """This robot's Sim: ``edit`` applied to the host model, then (unless built with
-        ``sensordata=True``) sensor evaluation turned off (``mjDSBL_SENSOR``)."""
+        """This robot's Sim, of its MJCF or of a ``scene`` holding it
+        (:class:`jaxenvs.scenes.Scene`): ``edit`` applied to the host model, then (unless
+        built with ``sensordata=True``) sensor evaluation turned off (``mjDSBL_SENSOR``)."""
+        source = self.xml if scene is None else scene
         if self.sensordata:
-            return Sim(self.xml, timestep=timestep, substeps=substeps, edit=edit)
+            return Sim(source, timestep=timestep, substeps=substeps, edit=edit)
 
         def edit_and_silence(model: mujoco.MjModel) -> None:
             if edit is not None:
                 edit(model)
             model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
 
-        return Sim(self.xml, timestep=timestep, substeps=substeps, edit=edit_and_silence)
+        return Sim(source, timestep=timestep, substeps=substeps, edit=edit_and_silence)
 
     def default_fields(self, sim: Sim) -> dict[str, jax.Array]:
         """The values of :attr:`fields` in ``sim``'s device model (the default params)."""
@@ -414,6 +417,46 @@ class RobotTask:
         applies the same."""
         del previous
         return self.actuator_action(action)
+
+    # ------------------------------------------------ what a deploy loop calls (public)
+    #: how many of the policy's last actions the observation holds (1: none but what the
+    #: task state says; the joystick's ``action_delay_max + 1``)
+    action_history: int = 1
+    #: the shape of the task's input in a deploy loop (``jaxenvs deploy --command``);
+    #: ``None``: the shape of the task state itself
+    task_input_shape: tuple[int, ...] | None = None
+
+    def with_task_input(self, task: Any, value: Any) -> Any:
+        """The task state ``task`` with a deploy loop's task input ``value`` in force (a
+        command, a target); default: the input is the whole task state."""
+        del task
+        return value
+
+    def with_action_history(self, task: Any, actions: Any) -> Any:
+        """The task state holding ``actions``, the policy's last :attr:`action_history`
+        actions (the most recent first); default: ``task`` (the observation holds none)."""
+        del actions
+        return task
+
+    def tracking_errors(self, prev: Any, data: Any, task: Any) -> dict[str, jax.Array]:
+        """The task's tracking errors of the step ``prev -> data`` (one control period
+        apart) under the task state ``task`` (a joystick's velocity errors against its
+        command); default: none."""
+        del prev, data, task
+        return {}
+
+    def transition_reward(
+        self, prev: Any, data: Any, action: Any, extras: Any, params: Any
+    ) -> jax.Array:
+        """The reward of the step ``prev -> data`` under ``action`` (the task's
+        ``_reward``), for states that may hold only some fields (a robot's ground truth:
+        raises ``AttributeError`` naming a missing one)."""
+        reward, _ = self._reward(prev, data, action, extras, params)  # type: ignore[attr-defined]
+        return reward
+
+    def terminal(self, data: Any, extras: Any, params: Any) -> jax.Array:
+        """Whether ``data`` is a terminal state (the task's ``_terminated``)."""
+        return self._terminated(data, extras, params)  # type: ignore[attr-defined]
 
     def _observe(self, key: jax.Array, data: Any, extras: Any, params: Any) -> jax.Array:
         del key, params

@@ -267,13 +267,12 @@ class HostTask:
         self._act = jit(env.actuator_action)
         self._command = jit(env.actuator_command)
         self._truth_fns = jit(self._of_truth)
-        self._input = jit(getattr(env, "with_task_input", lambda task, value: value))
-        self._history = jit(getattr(env, "with_action_history", lambda task, actions: task))
+        self._input = jit(env.with_task_input)
+        self._history = jit(env.with_action_history)
         #: how many of the last actions the observation holds (the task's
         #: ``action_history``; 1 for a task without one, which ignores them)
-        self.action_history = int(getattr(env, "action_history", 1))
-        tracking = getattr(env, "tracking_errors", None)
-        self._tracking = None if tracking is None else jit(self._tracking_of(tracking))
+        self.action_history = int(env.action_history)
+        self._tracking = jit(self._tracking_of(env.tracking_errors))
         #: the observation needs a task state that a reset does not give (known after
         #: :meth:`warm`): the ground truth's, or a task input
         self.needs_input = False
@@ -315,7 +314,7 @@ class HostTask:
         self.observe(readings, task)
         self.tracking(truth, truth, task)
         leaves = jax.tree.leaves(task)
-        shape = getattr(self.env, "task_input_shape", None)
+        shape = self.env.task_input_shape
         if shape is None and len(leaves) != 1:
             return ()
         shape = tuple(np.shape(leaves[0])) if shape is None else tuple(shape)
@@ -351,18 +350,16 @@ class HostTask:
         """The task's tracking errors (its ``tracking_errors``: e.g. a joystick's velocity
         error against the command of ``task``) of the ground-truth step ``prev -> truth``;
         ``{}`` for a task without them."""
-        if self._tracking is None:
-            return {}
         return {k: float(v) for k, v in self._tracking(dict(prev), dict(truth), task).items()}
 
     def _of_truth(self, prev: Any, truth: Any, action: Any) -> Any:
         p, d = types.SimpleNamespace(**prev), types.SimpleNamespace(**truth)
         task = self.env.task_state(d, self._extras)
         try:
-            reward, _ = self.env._reward(p, d, action, self._extras, self._params)
+            reward = self.env.transition_reward(p, d, action, self._extras, self._params)
         except AttributeError:  # the reward needs more than the pose (e.g. servo forces)
             reward = float("nan")
-        return task, reward, self.env._terminated(d, self._extras, self._params)
+        return task, reward, self.env.terminal(d, self._extras, self._params)
 
     def observe(self, readings: Mapping[str, np.ndarray], task_state: Any) -> np.ndarray:
         """The observation (float32) of ``readings`` and ``task_state``."""

@@ -36,3 +36,15 @@ def tolerance(
     else:
         raise ValueError(f"unknown sigmoid {sigmoid!r}")
     return jnp.where(in_bounds, 1.0, value)
+
+
+# ----------------------------------------------------------------- legged-robot terms
+def servo_power(actuator_force: jax.Array, joint_vel: jax.Array) -> jax.Array:
+    """The servos' mechanical power, sum |torque x joint speed| (W): an energy penalty."""
+    return jnp.sum(jnp.abs(actuator_force * joint_vel))
+
+
+def roll_pitch_rate_sq(gyro: jax.Array) -> jax.Array:
+    """The squared roll and pitch rates of a body-frame gyro reading (rad^2/s^2); yaw
+    (turning) is free."""
+    return jnp.sum(jnp.square(gyro[:2]))

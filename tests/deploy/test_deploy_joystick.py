@@ -27,7 +27,7 @@ from jaxenvs.deploy.export import deploy_config, env_config_changes, npz_bytes
 from jaxenvs.deploy.log import read_log
 from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, NumpyPolicy
 from jaxenvs.robots.interface import HostTask, SensorFrame, spec_of
-from jaxenvs.tasks.hexapod_joystick import JoystickConfig
+from jaxenvs.tasks.hexapod.joystick import JoystickConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 ACTION = 0.05  # every joint slightly off the neutral stance: the robot stands

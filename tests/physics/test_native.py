@@ -36,14 +36,14 @@ NATIVE_OFF = os.environ.get(native.ENV_VAR, "1") == "0"
 def every_field(monkeypatch):
     """The shipped tasks' C engines write every derived field (``derived_fields = None``),
     for the checks of every field against MJX and across paths."""
-    from jaxenvs.tasks import cartpole, hexapod, hexapod_joystick, reacher
+    from jaxenvs.tasks import cartpole, hexapod, reacher
 
     for cls in (
         cartpole._CartpoleTask,
         reacher.Reacher,
         hexapod.HexapodWalk,
         hexapod.HexapodOneLeg,
-        hexapod_joystick.HexapodJoystick,
+        hexapod.HexapodJoystick,
     ):
         monkeypatch.setattr(cls, "derived_fields", None)
 

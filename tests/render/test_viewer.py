@@ -157,7 +157,7 @@ def test_policy_mode_plays_act_fn() -> None:
 
 
 def test_keys_drive_a_task_that_takes_commands() -> None:
-    from jaxenvs.tasks.hexapod_joystick import HexapodJoystick
+    from jaxenvs.tasks.hexapod.joystick import HexapodJoystick
 
     env = jaxenvs.make("HexapodJoystick-v0", physics="c")
     assert isinstance(env, HexapodJoystick) and viewer.drivable(env)

@@ -14,7 +14,7 @@ import pytest
 
 import jaxenvs
 from jaxenvs.config import ConfigError
-from jaxenvs.tasks.hexapod_joystick import (
+from jaxenvs.tasks.hexapod.joystick import (
     HexapodJoystick,
     JoystickConfig,
     heading_velocity,

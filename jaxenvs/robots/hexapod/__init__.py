@@ -51,6 +51,7 @@ from jaxenvs.robots.base import (
     quat_to_mat,
     world_to_body,
 )
+from jaxenvs.scenes import Flat, Ground, Marker, Scene
 
 __all__ = [
     "COXA",
@@ -174,6 +175,14 @@ class Hexapod(_HexapodServos):
     xml = robot_xml("hexapod")
     privileged = frozenset({"torso_vel", "torso_pos"})
     fields = WALK_FIELDS
+    #: the geoms that touch the ground (a scene pairs each with it): the feet, in
+    #: :data:`LEGS` order (``pair_friction``'s order)
+    feet = tuple(f"{leg}_foot" for leg in LEGS)
+
+    def scene(self, ground: Ground | None = None, markers: tuple[Marker, ...] = ()) -> Scene:
+        """The hexapod standing on ``ground`` (default: a flat floor), its feet paired with
+        it, with a task's ``markers``."""
+        return Scene(self.xml, ground or Flat(), contacts=self.feet, markers=markers)
 
     def qpos(self, pos: jax.Array, quat: jax.Array, joints: jax.Array) -> jax.Array:
         """The state's positions: torso position (3, m), orientation (4, w x y z), joint

@@ -16,29 +16,29 @@ biases drawn at reset (``joint_bias``, ``gyro_bias``); the servos' strength (kp)
 per env by ``gain_scale`` when params are randomised. All draws come from the hooks' keys,
 so MJX and MuJoCo C physics see the same ones.
 
-Physics as ``HexapodWalk-v0`` (:mod:`jaxenvs.tasks.hexapod`): six foot-floor contact
-pairs, Euler with implicit damping, the CG solver with ``solver_iterations`` and
-``ls_iterations`` from the config.
+Physics as ``HexapodWalk-v0`` (:mod:`jaxenvs.tasks.hexapod.base`): the robot on its
+scene, six foot-ground contact pairs, Euler with implicit damping, the CG solver with
+``solver_iterations`` and ``ls_iterations`` from the config.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from flax import struct
 
 from jaxenvs.config import require
-from jaxenvs.core import Env, State
+from jaxenvs.core import State
 from jaxenvs.randomize import Range
-from jaxenvs.robots.base import Readings, RobotTask, gravity_in_body, quat_to_mat
-from jaxenvs.robots.hexapod import Hexapod
-from jaxenvs.tasks.hexapod import HexapodRandomization, _solver_edit
+from jaxenvs.robots.base import Readings, gravity_in_body
+from jaxenvs.scenes import Ground
+from jaxenvs.tasks import rewards
+from jaxenvs.tasks.hexapod.base import HexapodConfig, HexapodTask
 
 if TYPE_CHECKING:
     from mujoco import mjx
@@ -54,15 +54,14 @@ SENSOR_SIZE = 42
 
 
 @dataclasses.dataclass(frozen=True)
-class JoystickConfig(HexapodRandomization):
-    """``HexapodJoystick-v0``.
+class JoystickConfig(HexapodConfig):
+    """``HexapodJoystick-v0`` (the fields it shares with the walker:
+    :class:`~jaxenvs.tasks.hexapod.base.HexapodConfig`).
 
     Attributes:
       episode_length: 1000 steps of 0.05 s (50 s): ten commands per episode. Training
         costs the same at any length (batched envs reset on their own); a shorter one
         would spend more of the data on starts from rest.
-      solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
-        contact solve.
       vx_range: forward speed command range (m/s, body frame).
       vy_range: lateral speed command range (m/s, body frame, positive to the left).
       yaw_range: yaw rate command range (rad/s, positive counter-clockwise from above).
@@ -72,18 +71,7 @@ class JoystickConfig(HexapodRandomization):
         ``exp(-|v_cmd - v|^2 / lin_sigma)``.
       yaw_weight, yaw_sigma: weight and width (rad^2/s^2) of the yaw-rate tracking term.
       vz_weight: weight of the squared vertical body speed (m^2/s^2).
-      spin_weight: weight of the squared roll and pitch rates (rad^2/s^2, body frame).
-      tilt_weight: weight of ``1 - up_z`` (``up_z`` the vertical component of the body's
-        up axis).
       action_rate_weight: weight of the squared change of the action since the last step.
-      energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
-      alive_bonus: reward per step while not fallen.
-      min_height: the episode ends when the body's height falls below this (m) ...
-      min_upright: ... or when its up axis' vertical component falls below this.
-      init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
-      init_height: initial body height (m).
-      action_noise: std of Gaussian noise added to each action before it is clipped.
-      obs_noise: std of Gaussian observation noise as a multiple of :data:`OBS_NOISE`.
       push_probability: probability per control step of a push ...
       push_speed: ... which adds a horizontal velocity of this magnitude (m/s) in a
         uniformly random direction to the body.
@@ -98,9 +86,6 @@ class JoystickConfig(HexapodRandomization):
         step before`` (0: none; the targets start at the stance, 0).
     """
 
-    episode_length: int = 1000
-    solver_iterations: int = 6
-    ls_iterations: int = 3
     vx_range: Range = (-0.4, 0.4)
     vy_range: Range = (-0.25, 0.25)
     yaw_range: Range = (-0.8, 0.8)
@@ -114,14 +99,7 @@ class JoystickConfig(HexapodRandomization):
     spin_weight: float = 0.02
     tilt_weight: float = 1.0
     action_rate_weight: float = 0.03
-    energy_weight: float = 0.002
     alive_bonus: float = 0.25
-    min_height: float = 0.06
-    min_upright: float = 0.7
-    init_joint_noise: float = 0.05
-    init_height: float = 0.14
-    action_noise: float = 0.0
-    obs_noise: float = 0.0
     push_probability: float = 0.0
     push_speed: float = 0.0
     action_delay_max: int = 0
@@ -129,10 +107,20 @@ class JoystickConfig(HexapodRandomization):
     gyro_bias: float = 0.0
     action_filter: float = 0.0
 
+    nonnegative: ClassVar[tuple[str, ...]] = (
+        *HexapodConfig.nonnegative,
+        "lin_weight",
+        "yaw_weight",
+        "vz_weight",
+        "action_rate_weight",
+        "push_speed",
+        "action_delay_max",
+        "joint_bias",
+        "gyro_bias",
+    )
+
     def validate(self) -> None:
         super().validate()
-        require(self.solver_iterations >= 1, "solver_iterations", "must be >= 1")
-        require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
         for name in ("vx_range", "vy_range", "yaw_range"):
             low, high = getattr(self, name)
             require(low <= high, name, "must be (low, high) with low <= high")
@@ -141,27 +129,6 @@ class JoystickConfig(HexapodRandomization):
         require(self.command_interval >= 1, "command_interval", "must be >= 1")
         require(self.lin_sigma > 0, "lin_sigma", "must be > 0")
         require(self.yaw_sigma > 0, "yaw_sigma", "must be > 0")
-        nonneg = (
-            "lin_weight",
-            "yaw_weight",
-            "vz_weight",
-            "spin_weight",
-            "tilt_weight",
-            "action_rate_weight",
-            "energy_weight",
-            "alive_bonus",
-            "init_joint_noise",
-            "action_noise",
-            "obs_noise",
-            "push_speed",
-            "action_delay_max",
-            "joint_bias",
-            "gyro_bias",
-        )
-        for name in nonneg:
-            require(getattr(self, name) >= 0, name, "must be >= 0")
-        require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
-        require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
         require(0 <= self.action_filter < 1, "action_filter", "must be in [0, 1)")
 
 
@@ -229,7 +196,7 @@ def sample_command(u: jax.Array, config: JoystickConfig) -> jax.Array:
     return jnp.where(u[3] < config.zero_probability, jnp.zeros(3), command)
 
 
-class HexapodJoystick(RobotTask, Env[JoystickConfig]):
+class HexapodJoystick(HexapodTask[JoystickConfig]):
     """``HexapodJoystick-v0``: follow a velocity command.
 
     * Observation (``45 + 18 * (action_delay_max + 1)``: 63 without delay),
@@ -275,10 +242,6 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
 
     cpu_physics = "c"
     c_envs_per_device = None  # contact physics: one device's engine pool (NOTES)
-    #: the servos' forces (the energy term); every other reading comes from qpos/qvel
-    derived_fields: tuple[str, ...] | None = ("actuator_force",)
-    robot: Hexapod
-
     metric_keys = (
         "lin_error",
         "yaw_error",
@@ -288,26 +251,16 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         "yaw_rate",
         "height",
     )
-    #: the test battery's vmap-vs-single tolerance (as ``HexapodWalk-v0``)
-    vmap_atol = 1e-2
     observation_size = 63  # the size without delay; an instance has its config's
-    action_size = 18
     #: the config fields a deploy loop depends on: the observation's layout and the
     #: commands' filter (an exported policy's metadata carries them: ``jaxenvs deploy``
     #: builds the task with them)
     deploy_fields = ("action_delay_max", "action_filter")
 
-    def __init__(self, config: JoystickConfig | None = None) -> None:
+    def __init__(self, config: JoystickConfig | None = None, ground: Ground | None = None) -> None:
         config = config or JoystickConfig()
-        self.robot = Hexapod()
-        sim = self.robot.make_sim(
-            config.timestep,
-            config.substeps,
-            edit=_solver_edit(config.solver_iterations, config.ls_iterations),
-        )
-        super().__init__(config, sim)
-        self._torso = mujoco.mj_name2id(sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, "torso")
-        self._params = JoystickParams(model=self.robot.default_fields(sim))
+        super().__init__(config, ground)
+        self._params = JoystickParams(model=self.robot.default_fields(self.sim))
         #: the number of past actions in the observation (and the delay buffer's length)
         self.action_history = config.action_delay_max + 1
         self.observation_size = SENSOR_SIZE + 18 * self.action_history + 3
@@ -315,11 +268,7 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
     def _init(self, key: jax.Array, params: JoystickParams) -> tuple[mjx.Data, JoystickExtras]:
         u = jax.random.uniform(key, (23,))  # one draw: see HexapodWalk._init
         c = self.config
-        yaw = math.pi * (2.0 * u[0] - 1.0)
-        quat = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
-        joints = c.init_joint_noise * (2.0 * u[1:19] - 1.0)
-        qpos = self.robot.qpos(jnp.array([0.0, 0.0, c.init_height]), quat, joints)
-        data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24))
+        data = self.sim.init_data(qpos=self.spawn(u[:19]), qvel=jnp.zeros(24))
         extras = JoystickExtras(
             command=sample_command(u[19:23], c),
             since=jnp.zeros((), jnp.int32),
@@ -496,11 +445,11 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
         vel = self.velocity(prev, data)
         lin_sq = jnp.sum(jnp.square(extras.command[:2] - vel[:2]))
         yaw_sq = jnp.square(extras.command[2] - vel[2])
-        energy = jnp.sum(jnp.abs(data.actuator_force * self.robot.joint_vel(now)))
-        spin = jnp.sum(jnp.square(now["imu_gyro"][:2]))
+        energy = self.energy(data, now)
+        spin = rewards.roll_pitch_rate_sq(now["imu_gyro"])
         vz = now["torso_vel"][2]
         rate = jnp.sum(jnp.square(extras.actions[0] - extras.prev_action))
-        up_z = quat_to_mat(now["imu_quat"])[2, 2]
+        up_z = self.robot.upright(now)
         reward = (
             c.lin_weight * jnp.exp(-lin_sq / c.lin_sigma)
             + c.yaw_weight * jnp.exp(-yaw_sq / c.yaw_sigma)
@@ -521,11 +470,3 @@ class HexapodJoystick(RobotTask, Env[JoystickConfig]):
             "height": data.qpos[2],
         }
         return reward, metrics
-
-    def _terminated(
-        self, data: mjx.Data, extras: JoystickExtras, params: JoystickParams
-    ) -> jax.Array:
-        """Fallen: the body below ``min_height`` or tilted past ``min_upright``."""
-        c = self.config
-        now = self.robot.sense(data)
-        return (self.robot.height(now) < c.min_height) | (self.robot.upright(now) < c.min_upright)

@@ -1,0 +1,183 @@
+"""What the hexapod tasks share: their params, the config fields of a body on the ground,
+the solver settings, and the base task (robot, scene, spawn, fall rule, energy)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+
+from jaxenvs.config import require
+from jaxenvs.core import Env, TaskConfig
+from jaxenvs.robots.base import Readings, RobotTask
+from jaxenvs.robots.hexapod import Hexapod, HexapodRanges
+from jaxenvs.scenes import Ground, Marker
+from jaxenvs.tasks import rewards
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from mujoco import mjx
+
+
+class HexapodParams(struct.PyTreeNode):
+    """Randomisable physics and task quantities.
+
+    Attributes:
+      model: MJX model fields swapped in at every step.
+      target_range: (low, high) of each target's distance from the body where it is
+        drawn (walker, m: at reset and at each waypoint) or of the target posture's joint
+        angles as fractions of each joint's half-range (one leg).
+    """
+
+    model: dict[str, jax.Array]
+    target_range: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class HexapodRandomization(HexapodRanges, TaskConfig):
+    """Fields every hexapod config has: the robot's randomisation ranges
+    (:class:`~jaxenvs.robots.hexapod.HexapodRanges`: ``mass_scale``, ``friction_scale``,
+    ``gain_scale``, ``damping_scale``) and the physics timing.
+
+    Attributes:
+      timestep, substeps: physics; the control period is their product (0.05 s, what
+        hobby servos sustain).
+    """
+
+    timestep: float = 0.01
+    substeps: int = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class HexapodConfig(HexapodRandomization):
+    """Fields of the tasks whose hexapod stands on the ground (the walker, the joystick).
+
+    Attributes:
+      episode_length: 1000 steps of 0.05 s (50 s).
+      solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
+        contact solve.
+      energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
+      alive_bonus: reward per step while not fallen.
+      tilt_weight: weight of the tilt penalty ``1 - up_z`` (0 upright, 0.29 at 45 degrees),
+        with ``up_z`` the vertical component of the body's up axis.
+      spin_weight: weight of the penalty on the body's squared roll and pitch rates
+        (rad^2/s^2, body frame); yaw (turning) is free.
+      min_height: the episode ends when the body's height falls below this (m) ...
+      min_upright: ... or when its up axis' vertical component falls below this (0.7:
+        tilted more than ~45 degrees; 0 would be lying on its side).
+      init_joint_noise: initial joint angles uniform in +- this (rad) around the stance.
+      init_height: initial body height (m): the feet start just above the floor.
+      action_noise: std of Gaussian noise added to each action before it is clipped to
+        [-1, 1] (fractions of the joint's half-range; 0: none).
+      obs_noise: std of Gaussian observation noise as a multiple of the task's per-entry
+        sensor scales (0: none). Both draw from the hooks' keys.
+    """
+
+    episode_length: int = 1000
+    solver_iterations: int = 6
+    ls_iterations: int = 3
+    energy_weight: float = 0.002
+    alive_bonus: float = 0.05
+    tilt_weight: float = 0.0
+    spin_weight: float = 0.0
+    min_height: float = 0.06
+    min_upright: float = 0.7
+    init_joint_noise: float = 0.05
+    init_height: float = 0.14
+    action_noise: float = 0.0
+    obs_noise: float = 0.0
+
+    #: the fields that must not be negative (a subclass adds its own)
+    nonnegative: ClassVar[tuple[str, ...]] = (
+        "energy_weight",
+        "alive_bonus",
+        "tilt_weight",
+        "spin_weight",
+        "init_joint_noise",
+        "action_noise",
+        "obs_noise",
+    )
+
+    def validate(self) -> None:
+        super().validate()
+        require(self.solver_iterations >= 1, "solver_iterations", "must be >= 1")
+        require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
+        for name in self.nonnegative:
+            require(getattr(self, name) >= 0, name, "must be >= 0")
+        require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
+        require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
+
+
+def solver_edit(iterations: int, ls_iterations: int) -> Callable[[mujoco.MjModel], None]:
+    """A model edit setting the contact solver's iterations and line-search steps."""
+
+    def edit(model: mujoco.MjModel) -> None:
+        model.opt.iterations = iterations
+        model.opt.ls_iterations = ls_iterations
+
+    return edit
+
+
+ConfigT = TypeVar("ConfigT", bound=HexapodConfig)
+
+
+class HexapodTask(RobotTask, Env[ConfigT], Generic[ConfigT]):
+    """The base of the tasks whose hexapod stands on its ground: the robot on the task's
+    scene (:meth:`Hexapod.scene`: a flat floor unless the task names another ground, plus
+    its markers), the config's solver, a spawn at a random yaw, the fall rule and the
+    servos' energy.
+
+    A subclass sets ``self._params`` after ``super().__init__`` and defines the task's
+    observation, action and reward hooks.
+    """
+
+    #: the servos' forces (the energy term); every other reading comes from qpos/qvel
+    derived_fields: tuple[str, ...] | None = ("actuator_force",)
+    #: the test battery's vmap-vs-single tolerance: the 6-iteration CG contact solve
+    #: amplifies the batched program's last-bit differences.
+    vmap_atol = 1e-2
+    action_size = 18
+    robot: Hexapod
+
+    def __init__(
+        self, config: ConfigT, ground: Ground | None = None, markers: tuple[Marker, ...] = ()
+    ) -> None:
+        self.robot = Hexapod()
+        sim = self.robot.make_sim(
+            config.timestep,
+            config.substeps,
+            edit=solver_edit(config.solver_iterations, config.ls_iterations),
+            scene=self.robot.scene(ground, markers),
+        )
+        super().__init__(config, sim)
+
+    def spawn(self, u: jax.Array) -> jax.Array:
+        """The start's ``qpos`` from 19 uniforms in [0, 1): the body at ``init_height``
+        with a yaw uniform in [-pi, pi) (``u[0]``), the joints uniform in
+        +-``init_joint_noise`` around the stance (``u[1:19]``)."""
+        c = self.config
+        yaw = math.pi * (2.0 * u[0] - 1.0)
+        quat = jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
+        joints = c.init_joint_noise * (2.0 * u[1:19] - 1.0)
+        return self.robot.qpos(jnp.array([0.0, 0.0, c.init_height]), quat, joints)
+
+    def energy(self, data: mjx.Data, readings: Readings) -> jax.Array:
+        """The servos' mechanical power during the step that ended in ``data`` (W)."""
+        return rewards.servo_power(data.actuator_force, self.robot.joint_vel(readings))
+
+    def fallen(self, readings: Readings) -> jax.Array:
+        """The body below ``min_height`` or tilted past ``min_upright``."""
+        c = self.config
+        return (self.robot.height(readings) < c.min_height) | (
+            self.robot.upright(readings) < c.min_upright
+        )
+
+    def _terminated(self, data: mjx.Data, extras: Any, params: Any) -> jax.Array:
+        """Fallen (:meth:`fallen`)."""
+        return self.fallen(self.robot.sense(data))
