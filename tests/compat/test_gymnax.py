@@ -5,6 +5,9 @@ training (rejax's PPO) on two tasks."""
 from __future__ import annotations
 
 import copy
+import re
+import runpy
+from pathlib import Path
 
 import counting_task
 import jax
@@ -246,3 +249,17 @@ def test_rejax_ppo_trains_through_the_adapter(env_id):
     _, (lengths, returns) = jax.jit(algo.train)(jax.random.PRNGKey(0))
     mean = float(np.asarray(returns)[-1].mean())
     assert mean >= bar, f"{env_id}: greedy mean return {mean:.2f} < {bar}"
+
+
+@pytest.mark.full
+def test_docs_purejaxrl_example_trains(capsys, tmp_path):
+    """docs/gymnax.md's PureJaxRL-style PPO runs as written and reaches a greedy 475+."""
+    doc = (Path(__file__).parents[2] / "docs" / "gymnax.md").read_text()
+    section = doc.split("## A PureJaxRL-style PPO", 1)[1]
+    script = tmp_path / "purejaxrl_ppo.py"
+    script.write_text(section.split("```python\n", 1)[1].split("```", 1)[0])
+    runpy.run_path(str(script), run_name="docs_example")
+    printed = capsys.readouterr().out
+    match = re.search(r"greedy mean return: ([\d.]+)", printed)
+    assert match is not None, printed
+    assert float(match[1]) >= 475.0
