@@ -335,9 +335,9 @@ def main() -> None:
     print("loop vs env:", extra["loop_vs_env_qpos"])
     if args.json:
         title = "Heading dependence of the hexapod's contact and its step cost, MuJoCo C, 2 cores"
-        results_io.write(
-            args.json, results_io.record(args.json, title, rows, engine="c", extra=extra)
-        )
+        where = f"the shared {os.cpu_count()}-core development machine"
+        rec = results_io.record(args.json, title, rows, description=where, engine="c", extra=extra)
+        results_io.write(args.json, rec)
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from . import (
     auto,
+    contact,
     deploy,
     engines,
     export,
@@ -35,6 +36,7 @@ FAMILIES = (
     soak,
     export,
     deploy,
+    contact,
 )
 
 
