@@ -31,6 +31,7 @@ from jaxenvs import files, machine
 from jaxenvs.agents.base import Trainer
 from jaxenvs.run import checkpoint
 from jaxenvs.run.evaluation import eval_key
+from jaxenvs.run.placement import resolve_scaling
 from jaxenvs.run.programs import Programs, build_programs
 from jaxenvs.run.results import (
     ProgressBar,
@@ -115,7 +116,8 @@ class _Run:
 def _prepare(
     resolved: ResolvedConfig, out: Path, devices: int | None, say: Callable[[str], None]
 ) -> _Run:
-    resolved = engine_resolved(resolved)
+    # config.yaml records the batch that trains: a weak config's, multiplied out
+    resolved = resolve_scaling(engine_resolved(resolved), devices)
     programs = build_programs(resolved, devices)
     say(machine.describe(programs.env))
     per_chunk, chunks = programs.trainer.steps_per_chunk, programs.trainer.num_chunks
