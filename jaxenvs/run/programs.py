@@ -23,7 +23,7 @@ from jaxenvs.core import Env
 from jaxenvs.core.xla import jit
 from jaxenvs.run import compile_cache, program_cache
 from jaxenvs.run.evaluation import eval_key, make_evaluator
-from jaxenvs.run.placement import run_mesh, shard_trainer_fns
+from jaxenvs.run.placement import mesh_programs, run_mesh
 from jaxenvs.run.run_config import ResolvedConfig, build, seed_keys
 
 PyTree = Any
@@ -45,8 +45,6 @@ class Programs:
     def evaluate(self, params: PyTree, key: jax.Array) -> Any:
         """The evaluator's ``(returns, trajectory, length)`` of every seed (waits for
         its compile)."""
-        # compiled for one device; a run over several holds its params replicated
-        params = jax.device_put(params, jax.local_devices()[0])
         return self.eval_future.result()(params, key)
 
 
@@ -60,7 +58,7 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     resume or a second run in the same process reuses the compiled programs. Over more
     than one device (``devices``; ``None``: :func:`jaxenvs.run.placement.run_mesh`),
     init and chunk split the env batch over a mesh of them
-    (:func:`jaxenvs.run.placement.shard_trainer_fns`). On one device,
+    (:func:`jaxenvs.run.placement.mesh_programs`). On one device,
     with the compile cache on, init, chunk and evaluator are stored traced and loaded on
     later runs (:func:`program_store`), so a warm start skips most tracing as well as
     compiling.
@@ -69,10 +67,9 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     mesh = run_mesh(resolved.agent.num_envs, env.physics, devices, env.c_envs_per_device)
     init_fn: Any = None
     chunk_fn: Any = None
-    if mesh.size > 1:
-        init_fn, chunk_fn = shard_trainer_fns(
-            trainer, mesh, resolved.agent.num_envs, num_seeds=resolved.train.num_seeds
-        )
+    if mesh.size > 1:  # laid out over the mesh, the evaluator too (jaxenvs.run.placement)
+        trainer, init_fn, chunk_fn, compile_evaluate = mesh_programs(resolved, env, trainer, mesh)
+        return Programs(env, trainer, init_fn, chunk_fn, _COMPILER.submit(compile_evaluate))
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     key_shape = jax.eval_shape(lambda: eval_key(0))
