@@ -31,7 +31,11 @@ joint nudged by 1e-9 rad instead of turned (how far the dynamics themselves carr
 rounding-sized difference); the solver's iterations (mean, max) along A; ``walked_m``, the
 gait's distance in 2 s from the start; ``steps_per_cpu_s``, single-threaded ``mj_step`` calls
 per CPU second of the tripod gait (thread time, the best of ``--rounds`` interleaved rounds)
-and ``cost_vs_today``, the time of a step over today's.
+and ``cost_vs_today``, the time of a step over today's; ``terrain_stand_range_m``, the range
+of the torso's height while the robot stands (servos at the stance, seconds 1 to 3) on the
+default generated terrain's top-level flat, rough-slope and obstacle tiles, the worst of the
+three (on the plane, under 0.1 mm), and
+``terrain_contacts``, the mean number of contacts there (several per foot on a heightfield).
 
     python benchmarks/contact_isotropy.py --json contact_isotropy_cpu2
 """
@@ -53,6 +57,8 @@ import results_io
 
 import jaxenvs
 from jaxenvs.robots.hexapod import LEGS
+from jaxenvs.scenes import Scene
+from jaxenvs.scenes.terrain import Terrain, generate
 
 ENV_ID = "HexapodJoystick-v0"
 TURN = 1.3  # rad about the vertical
@@ -279,6 +285,44 @@ def loop_vs_env(steps: int = 20) -> float:
     return worst
 
 
+#: the tiles (top level) the robot stands on in :func:`stand_on_terrain`
+STAND_TILES = ("flat", "rough_slope", "obstacles")
+
+
+def terrain_model(env: Any) -> tuple[mujoco.MjModel, Terrain]:
+    """The robot on the default generated terrain (jaxenvs.scenes.terrain): the same six
+    foot pairs with the heightfield in place of the plane, the env's options."""
+    terrain = generate()
+    scene = Scene(robot=env.robot.xml, ground=terrain, contacts=tuple(f"{g}_foot" for g in LEGS))
+    m = scene.spec().compile()
+    m.opt.timestep = env.sim.physics_mj_model.opt.timestep
+    m.opt.disableflags = env.sim.physics_mj_model.opt.disableflags
+    return m, terrain
+
+
+def stand_on_terrain(model: mujoco.MjModel, terrain: Terrain, env: Any) -> dict[str, float]:
+    """The robot dropped from the start pose on each of :data:`STAND_TILES`' spawn points at
+    the top level, servos at the stance: the range of the torso's height over seconds 1 to 3
+    (on the plane, under 0.1 mm) and the mean number of contacts."""
+    ranges, contacts = [], []
+    for name in STAND_TILES:
+        x, y, z = terrain.origins[terrain.levels - 1, terrain.types.index(name)]
+        d = mujoco.MjData(model)
+        d.qpos[:3] = (x, y, z + env.config.init_height)
+        d.qpos[3] = 1.0
+        heights = []
+        for k in range(round(3.0 / model.opt.timestep)):
+            mujoco.mj_step(model, d)
+            if k * model.opt.timestep >= 1.0:
+                heights.append(d.qpos[2])
+                contacts.append(d.ncon)
+        ranges.append(max(heights) - min(heights))
+    return {
+        "terrain_stand_range_m": float(max(ranges)),
+        "terrain_contacts": float(np.mean(contacts)),
+    }
+
+
 def measure(
     model: mujoco.MjModel, env: Any, obs_fn: Any, scenarios: dict[str, Any]
 ) -> dict[str, Any]:
@@ -311,8 +355,10 @@ def main() -> None:
     scenarios = {"start": (tripod, 0), "gait": (tripod, WARM_STEPS)}
     scenarios.update({f"random{i}": (smooth_random(i), WARM_STEPS) for i in range(3)})
     rows = []
+    ground, terrain = terrain_model(env)
     for setting, model in zip(SETTINGS, models, strict=True):
-        rows.append(setting._asdict() | measure(model, env, obs_fn, scenarios))
+        on_terrain = stand_on_terrain(configured(ground, setting, {}), terrain, env)
+        rows.append(setting._asdict() | measure(model, env, obs_fn, scenarios) | on_terrain)
         print({k: v for k, v in rows[-1].items() if not k.endswith("by_scenario")}, flush=True)
     best = [math.inf] * len(SETTINGS)
     for _ in range(args.rounds):  # interleaved: a busy moment slows every setting alike
