@@ -10,7 +10,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from jaxenvs.robots.hexapod import COXA, FEMUR, LEG_RANGE, TIP, Hexapod
+from jaxenvs.robots.hexapod import COXA, FEMUR, LEG_RANGE, LEGS, TIP, Hexapod
+from jaxenvs.scenes import Scene
 from jaxenvs.scenes.terrain import REACHABLE_STEP, TYPES, Terrain, TerrainConfig, generate
 
 SMALL = TerrainConfig(levels=4, tile_size=1.5, platform=0.5, border=0.25, obstacle_count=20)
@@ -33,10 +34,11 @@ def model_of(terrain: Terrain) -> mujoco.MjModel:
     return mujoco.MjModel.from_xml_string(xml)
 
 
-def mujoco_heights(m: mujoco.MjModel) -> np.ndarray:
-    """The heights (m) MuJoCo puts its samples at: ``geom_z + data * elevation_z``."""
+def mujoco_heights(m: mujoco.MjModel, geom: int = 0) -> np.ndarray:
+    """The heights (m) MuJoCo puts the samples of its heightfield at (``geom`` the hfield
+    geom): ``geom_z + data * elevation_z``."""
     nrow, ncol = int(m.hfield_nrow[0]), int(m.hfield_ncol[0])
-    return m.geom_pos[0, 2] + m.hfield_data.reshape(nrow, ncol) * m.hfield_size[0, 2]
+    return m.geom_pos[geom, 2] + m.hfield_data.reshape(nrow, ncol) * m.hfield_size[0, 2]
 
 
 def tile(t: Terrain, level: int, col: int) -> np.ndarray:
@@ -162,6 +164,15 @@ def test_mjcf_puts_every_sample_at_its_height(small: Terrain) -> None:
     m2 = spec.compile()
     assert np.abs(mujoco_heights(m2) - mujoco_heights(m)).max() < 1e-6
     assert m2.hfield_size[0] == pytest.approx(m.hfield_size[0])
+
+
+def test_a_terrain_is_a_scenes_ground(small: Terrain) -> None:
+    feet = tuple(f"{leg}_foot" for leg in LEGS)
+    m = Scene(robot=Hexapod.xml, ground=small, contacts=feet).spec().compile()
+    ground = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, small.name)
+    assert m.nhfield == 1 and m.geom_type[ground] == mujoco.mjtGeom.mjGEOM_HFIELD
+    assert m.npair == len(feet) and np.all(m.pair_geom1 == ground)
+    assert np.abs(mujoco_heights(m, ground) - small.heights).max() < 1e-6
 
 
 def test_from_array_round_trip() -> None:
