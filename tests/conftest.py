@@ -98,8 +98,8 @@ def get_batched():
 
 def _session_compile_cache() -> None:
     """JAX's persistent cache on, in the directory every worker shares, bounded (so JAX
-    locks its files), without the program store (:func:`jaxenvs.run.compile_cache.active`
-    stays ``None``; tests of the store switch it on themselves)."""
+    locks its files); :func:`jaxenvs.run.compile_cache.active` stays ``None`` (tests of the
+    command line's cache switch it on themselves)."""
     jax.config.update("jax_compilation_cache_dir", _XLA_CACHE)
     jax.config.update("jax_compilation_cache_max_size", 8 << 30)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
@@ -109,9 +109,9 @@ _session_compile_cache()
 
 
 @pytest.fixture(autouse=True)
-def _program_store_stays_off():
-    """A test that switches the command line's cache (and with it the program store) on
-    does not leave the store on for the tests after it."""
+def _command_line_cache_stays_off():
+    """A test that switches the command line's cache on does not leave it on for the tests
+    after it."""
     yield
     if compile_cache.active() is not None:
         compile_cache.disable()

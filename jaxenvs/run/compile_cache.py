@@ -2,25 +2,23 @@
 
 A compiled program (the training chunk, the evaluation rollout, ...) is stored on disk
 keyed by its HLO, the JAX/XLA versions and the device, so a second run of the same task
-and config skips compiling. The command line calls :func:`enable` unless given
-``--no-compile-cache``; library users opt in by calling it themselves.
-
-While it is on, the trainers' traced programs are stored too, in its ``programs/``
-subdirectory (:mod:`jaxenvs.run.program_cache`), so that a warm run skips tracing as well.
+and config skips compiling (not tracing: the Python that builds a program runs in every
+process). The command line calls :func:`enable` unless given ``--no-compile-cache``;
+library users opt in by calling it themselves.
 
 The directory is per user: ``$JAXENVS_CACHE_DIR`` if set, else
 ``$XDG_CACHE_HOME/jaxenvs/jax-compile`` (``~/.cache/jaxenvs/jax-compile``).
 
-Trust. :func:`enable` configures JAX's own cache through ``jax.config`` only:
-
-* it bounds the cache (``jax_compilation_cache_max_size``, :data:`DEFAULT_MAX_BYTES`),
-  which also turns on JAX's file lock around every read and write (several processes may
-  share one directory) and its least-recently-used eviction;
-* on the JAX releases :mod:`jaxenvs.run._jax_cache_hook` was tested against (0.10, 0.11), every
-  entry also carries a SHA-256 of its key and content, and an entry that does not verify
-  (flipped bytes, truncated, another key's) is removed with one warning and compiled
-  again: a damaged entry costs one recompile, never a failed run or a wrong program. On
-  other releases entries are JAX's own, unverified (a damaged one is JAX's to report).
+Trust. :func:`enable` configures JAX's own cache through the public ``jax.config`` only.
+It bounds the cache (``jax_compilation_cache_max_size``, :data:`DEFAULT_MAX_BYTES`), which
+also turns on JAX's file lock around every read and write (several processes may share
+one directory) and its least-recently-used eviction. The entries are JAX's: an entry that
+does not decompress or deserialise (truncated, flipped bytes) is reported by JAX with a
+warning ("Error reading persistent compilation cache entry") and the program is compiled
+again, never a failed run; but JAX keeps the damaged file (it never overwrites an entry),
+so every later run pays that compile and warning until the entry or the directory is
+deleted. JAX does not check that an entry belongs to its key: a file copied over another
+key's loads the other program.
 
 A directory that cannot be written leaves the cache off with a one-line warning naming it:
 every run then compiles cold.
@@ -30,19 +28,23 @@ from __future__ import annotations
 
 import os
 import tempfile
+import warnings
 from pathlib import Path
 
 import jax
 from jax.experimental.compilation_cache import compilation_cache as jax_cache
-
-from jaxenvs.run import _jax_cache_hook
-from jaxenvs.run.program_cache import notice
 
 ENV_VAR = "JAXENVS_CACHE_DIR"
 #: the cache's size limit unless :func:`enable` is given another (least recently used
 #: entries are evicted past it)
 DEFAULT_MAX_BYTES = 2 * 1024**3
 _ACTIVE: list[Path] = []  # the directory enable() turned on, if any
+
+
+def notice(message: str) -> None:
+    """Warn with ``message`` as one line (a ``UserWarning`` from "jaxenvs", with no source
+    line after it): what an unwritable cache costs, never an error."""
+    warnings.warn_explicit(message, UserWarning, "jaxenvs", 0)
 
 
 def writable_problem(directory: Path) -> str | None:
@@ -91,7 +93,6 @@ def enable(
     jax.config.update("jax_compilation_cache_dir", str(cache))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_secs))
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    _jax_cache_hook.install()
     jax_cache.reset_cache()  # JAX builds its cache once: rebuilt for these settings
     _ACTIVE[:] = [cache]
     return cache
@@ -105,6 +106,5 @@ def active() -> Path | None:
 def disable() -> None:
     """Turn the persistent compilation cache off for this process."""
     jax.config.update("jax_compilation_cache_dir", None)
-    _jax_cache_hook.remove()
     jax_cache.reset_cache()
     _ACTIVE.clear()

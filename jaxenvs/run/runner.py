@@ -7,7 +7,7 @@ place to import from:
   (:func:`resolve_config`), the algorithm table :data:`ALGORITHMS`, :func:`build`, and the
   names of a run directory's files.
 * :mod:`jaxenvs.run.programs`: the compiled init, chunk and evaluator of a config,
-  cached per config and stored next to the compile cache.
+  cached per config.
 * :mod:`jaxenvs.run.loop`: :func:`train`, the chunk loop with its checkpoints, resume
   and Ctrl-C.
 * :mod:`jaxenvs.run.results`: progress.csv, the progress bar, summary.json, the
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.loop import RunState, train
-from jaxenvs.run.programs import Programs, build_programs, program_store
+from jaxenvs.run.programs import Programs, build_programs
 from jaxenvs.run.restore import (
     POLICY_FILE,
     evaluate_run,
@@ -99,7 +99,6 @@ __all__ = [
     "load_run_config",
     "make_evaluator",
     "plot_curves",
-    "program_store",
     "read_progress",
     "resolve_config",
     "restore",
