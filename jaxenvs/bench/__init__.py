@@ -22,7 +22,8 @@ memory (arguments, outputs and temporaries, from XLA's own analysis), the proces
 resident memory and, on accelerators, the device's peak bytes in use are recorded.
 
 The peers (Gymnasium, EnvPool, MuJoCo's C ``rollout``, gymnax) are runners of the same
-kind, in :mod:`jaxenvs.bench.peers`; :mod:`jaxenvs.bench.plot` draws a sweep.
+kind, prepared by ``benchmarks/peers.py`` of the source checkout (not part of the
+package); :mod:`jaxenvs.bench.plot` draws a sweep.
 """
 
 from __future__ import annotations

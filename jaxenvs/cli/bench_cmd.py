@@ -5,15 +5,20 @@
 
 Our env is compiled at every (task, batch, mode) first; then ours and the peers are timed
 in interleaved rounds (medians), so a busy machine slows both alike. The ratio table
-(ours at its best batch, full auto-resetting step, over each peer) is printed last.
+(ours at its best batch, full auto-resetting step, over each peer) is printed last. The
+peers' harness is not part of the package: ``--peers`` loads ``benchmarks/peers.py`` from
+the source checkout the package runs from, and is a one-line error elsewhere.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import sys
 from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
 from jaxenvs import files
@@ -46,7 +51,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", type=_positive, default=100, help="env steps per call")
     parser.add_argument("--repeats", type=_positive, default=5, help="timed rounds (median)")
     parser.add_argument("--target-s", type=float, default=0.3, help="seconds per timed call")
-    parser.add_argument("--peers", action="store_true", help="also time the peers")
+    parser.add_argument(
+        "--peers",
+        action="store_true",
+        help="also time the peers (benchmarks/peers.py of a checkout)",
+    )
     parser.add_argument("--peer-envs", type=_positive, default=256, help="EnvPool/rollout batch")
     parser.add_argument(
         "--threads",
@@ -98,10 +107,34 @@ def _validate(args: argparse.Namespace, ids: list[str]) -> list[str]:
     return tasks
 
 
+#: the peers' harness in a source checkout (this file is jaxenvs/cli/bench_cmd.py)
+PEERS_FILE = Path(__file__).resolve().parents[2] / "benchmarks" / "peers.py"
+
+
+def peer_harness() -> ModuleType:
+    """:data:`PEERS_FILE`, loaded as a module; a ``ValueError`` (one line) where the package
+    runs without a source checkout (an installed wheel)."""
+    path = PEERS_FILE
+    spec = importlib.util.spec_from_file_location("jaxenvs_bench_peers", path)
+    if not path.is_file() or spec is None or spec.loader is None:
+        raise ValueError(
+            f"--peers needs a source checkout of jaxenvs: the peers' harness is "
+            f"benchmarks/peers.py there, not part of the installed package (no {path})"
+        )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up while executing
+    spec.loader.exec_module(module)
+    return module
+
+
 def _runners(
-    args: argparse.Namespace, tasks: list[str], log: Callable[[str], None]
+    args: argparse.Namespace,
+    tasks: list[str],
+    log: Callable[[str], None],
+    peers: ModuleType | None,
 ) -> tuple[list[Runner], list[dict[str, Any]]]:
-    """Ours compiled at every (task, engine, batch, mode); with ``--peers``, each task's peers.
+    """Ours compiled at every (task, engine, batch, mode); with ``peers`` (the harness),
+    each task's peers.
 
     Returns the runners and the peers that could not run here (as result dicts)."""
     import jax
@@ -119,9 +152,7 @@ def _runners(
                     log(f"compiling {task} x{b} {mode} ({physics})")
                     devices = args.devices if mode == "full" else None
                     runners.append(bench.prepare_ours(task, b, mode, args.steps, devices, physics))
-        if args.peers:
-            from jaxenvs.bench import peers
-
+        if peers is not None:
             log(f"preparing peers of {task}")
             for p in peers.peer_runners(task, args.peer_envs, max(args.batches), threads):
                 if isinstance(p, bench.Runner):
@@ -174,21 +205,18 @@ def run(args: argparse.Namespace) -> int:
     from jaxenvs import bench
 
     tasks = _validate(args, jaxenvs.list_envs())
+    peers = peer_harness() if args.peers else None
 
     def log(msg: str) -> None:
         print(f"# {msg}", file=sys.stderr, flush=True)
 
     info = bench.machine()
     print(f"# {info['host']} {info['device']} x{info['device_count']} jax {info['jax']}")
-    runners, skipped = _runners(args, tasks, log)
+    runners, skipped = _runners(args, tasks, log, peers)
     log(f"timing {len(runners)} runners, {args.repeats} interleaved rounds")
     results = bench.time_runners(runners, args.repeats, args.target_s, log) + skipped
     print(bench.format_table(_results_table(results)))
-    ratio_rows: list[dict[str, Any]] = []
-    if args.peers:
-        from jaxenvs.bench import peers
-
-        ratio_rows = peers.ratios(results)
+    ratio_rows: list[dict[str, Any]] = [] if peers is None else peers.ratios(results)
     if ratio_rows:
         print()
         print(bench.format_table(_ratio_table(ratio_rows)))

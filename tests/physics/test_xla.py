@@ -19,8 +19,6 @@ PACKAGE = Path(jaxenvs.__file__).parent
 PLAIN_JIT = {
     "core/xla.py": "the wrapper itself",
     "core/placement.py": "spread: traced inside its caller's jit, where XLA takes no options",
-    "run/program_cache.py": "jax.export traces the function; it compiles nothing",
-    "bench/peers.py": "a peer's program, compiled as its users compile it",
 }
 
 
