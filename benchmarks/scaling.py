@@ -1,18 +1,24 @@
-"""Scale-out: env steps/s and PPO wall time on 1 vs N devices (jaxenvs.core.sharding).
+"""Scale-out of PPO end to end: env steps/s of a task's training on 1 and N devices.
 
-For each task and each device count, all in one process:
+Each row trains a task's shipped PPO config through the runner's own programs
+(:func:`jaxenvs.run.programs.build_programs`, as ``jaxenvs train --devices N`` runs it)
+in one of three modes:
 
-* **env steps/s**: ``steps`` auto-resetting batched steps with random actions per call,
-  the env batch split over the devices and carried (donated) from call to call; the
-  median of ``repeats`` timed calls after a compile-and-warm-up call. Two batch sizes per
-  device count: the total ``--envs`` (strong scaling: the same work on more devices) and
-  ``--envs`` per device (weak scaling).
-* **PPO wall time**: ``--ppo-updates`` PPO updates (one chunk) with ``--ppo-envs`` envs in
-  total, env states split over the devices and network parameters replicated; median of
-  ``repeats`` timed chunks after the compile, plus the compile time.
+* ``weak``: the config's ``num_envs`` on every device (``scaling: weak``): N devices
+  collect N times the data per update;
+* ``strong``: the config's ``num_envs`` split over the devices;
+* ``seeds``: N seeds, each trained on a device of its own (no cross-device traffic).
 
-    python benchmarks/scaling.py --tasks Reacher-v0 HexapodWalk-v0 --devices 1 2 \\
-        --json scaling_h200x2_reacher_walker
+A row runs ``init``, a first chunk (compile and run: ``first_chunk_s``) and ``--chunks``
+timed chunks; ``env_steps_per_s`` is the env steps of the timed chunks (every seed's)
+over their wall time, compile excluded; ``train_seconds`` is the whole row's wall time,
+init and the first chunk included; ``speedup`` is over the one-device row of the same
+task (for ``seeds``: one seed on one device). ``--env-only`` adds a row of the env alone
+on one device (random actions, the same batch, solver and randomisation), for the ratio
+of PPO's rate to its env's.
+
+    python benchmarks/scaling.py --tasks HexapodWalk-v0 --devices 1 2 --modes weak seeds \\
+        --chunks 3 --env-only --json scaling_gpu
 
 On a CPU, add ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` to try the code path
 (the "devices" then share the same cores, so expect no speed-up).
@@ -21,172 +27,134 @@ On a CPU, add ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` to try the 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import platform
-import statistics
 import time
 from typing import Any
 
 import jax
 import results_io
 
-import jaxenvs
-from jaxenvs.agents import ppo
-from jaxenvs.core import BatchedEnv, Env, sharding
-from jaxenvs.run.placement import shard_trainer_fns
+from jaxenvs.core import BatchedEnv, sharding
+from jaxenvs.run import programs, run_config
+from jaxenvs.run.placement import resolve_scaling
+
+MODES = ("weak", "strong", "seeds")
 
 
-def env_throughput(
-    env_id: str, num_envs: int, devices: int, steps: int, repeats: int
+def _resolved(task: str, mode: str, devices: int, overrides: dict[str, Any]) -> Any:
+    """The run config of one row, resolved for ``devices`` devices as a run resolves it."""
+    agent = {**overrides, "scaling": "weak" if mode == "weak" else "strong"}
+    seeds = devices if mode == "seeds" else 1
+    train = {"num_seeds": seeds, "video": False, "eval_episodes": 1}
+    r = run_config.resolve_config(task, "ppo", None, agent, train)
+    return resolve_scaling(run_config.engine_resolved(r), devices)
+
+
+def ppo_row(
+    task: str, mode: str, devices: int, chunks: int, overrides: dict[str, Any]
 ) -> dict[str, Any]:
-    """Env steps/s of ``num_envs`` envs split over the first ``devices`` devices."""
-    benv = jaxenvs.make(env_id, num_envs=num_envs)
-    assert isinstance(benv, BatchedEnv)
-    mesh = sharding.make_mesh(devices)
-    reset, run = sharding.make_sharded_steps(benv, mesh, steps)
+    """One row: PPO on ``task`` in ``mode`` over the first ``devices`` devices."""
+    resolved = _resolved(task, mode, devices, overrides)
+    t0 = time.perf_counter()
+    progs = programs.build_programs(resolved, devices)
+    keys = run_config.seed_keys(0, resolved.train.num_seeds)
+    state = jax.block_until_ready(progs.init_fn(keys))
+    t1 = time.perf_counter()
+    state, _ = jax.block_until_ready(progs.chunk_fn(state))
+    first = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    for _ in range(chunks):
+        state, metrics = jax.block_until_ready(progs.chunk_fn(state))
+    timed = time.perf_counter() - t2
+    steps = progs.trainer.steps_per_chunk * chunks * resolved.train.num_seeds
+    return {
+        "task": task,
+        "gpus": devices,
+        "mode": mode,
+        "env_steps_per_s": steps / timed,
+        "train_seconds": time.perf_counter() - t0,
+        "first_chunk_s": first,
+        "timed_chunks": chunks,
+        "num_envs_total": resolved.agent.num_envs * resolved.train.num_seeds,
+        "num_seeds": resolved.train.num_seeds,
+        "loss": float(jax.device_get(metrics["loss"]).mean()),
+        "device": jax.devices()[0].device_kind,
+    }
+
+
+def env_row(task: str, steps: int, repeats: int, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The env alone on one device at the config's batch, solver and randomisation."""
+    resolved = _resolved(task, "strong", 1, overrides)
+    env, _ = run_config.build(resolved)
+    a = resolved.agent
+    benv = BatchedEnv(env, a.num_envs, randomize=a.randomize, devices=1, compact_reset=False)
+    reset, run = sharding.make_sharded_steps(benv, sharding.make_mesh(1), steps)
     keys = iter(jax.random.split(jax.random.key(0), repeats + 2))
-    t0 = time.perf_counter()
     state = jax.block_until_ready(run(reset(next(keys)), next(keys)))
-    first = time.perf_counter() - t0
-    times = []
-    for k in keys:
-        t0 = time.perf_counter()
-        state = jax.block_until_ready(run(state, k))
-        times.append(time.perf_counter() - t0)
-    wall = statistics.median(times)
-    return {
-        "kind": "env",
-        "task": env_id,
-        "devices": devices,
-        "num_envs": num_envs,
-        "steps_per_call": steps,
-        "env_steps_per_s": num_envs * steps / wall,
-        "median_call_s": wall,
-        "first_call_s": first,
-    }
-
-
-def ppo_wall_time(
-    env_id: str, num_envs: int, devices: int, updates: int, repeats: int
-) -> dict[str, Any]:
-    """Seconds per ``updates`` PPO updates with ``num_envs`` envs over ``devices``."""
-    env = jaxenvs.make(env_id)
-    assert isinstance(env, Env)
-    config = dataclasses.replace(
-        ppo.PPOConfig(),
-        num_envs=num_envs,
-        num_steps=16,
-        updates_per_chunk=updates,
-        update_epochs=4,
-        num_minibatches=4,
-        total_steps=num_envs * 16 * updates * (repeats + 1),
-    )
-    trainer = ppo.make_trainer(env, config)
-    mesh = sharding.make_mesh(devices)
-    init, chunk = shard_trainer_fns(trainer, mesh, num_envs)
     t0 = time.perf_counter()
-    state = jax.block_until_ready(init(jax.random.key(0)))
-    state, metrics = jax.block_until_ready(chunk(state))
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        state, metrics = jax.block_until_ready(chunk(state))
-        times.append(time.perf_counter() - t0)
-    wall = statistics.median(times)
+    for k in keys:
+        state = jax.block_until_ready(run(state, k))
+    wall = time.perf_counter() - t0
     return {
-        "kind": "ppo",
-        "task": env_id,
-        "devices": devices,
-        "num_envs": num_envs,
-        "updates_per_call": updates,
-        "env_steps_per_call": config.steps_per_chunk,
-        "median_call_s": wall,
-        "env_steps_per_s": config.steps_per_chunk / wall,
-        "first_call_s": first,
-        "loss": float(metrics["loss"]),
+        "task": task,
+        "gpus": 1,
+        "mode": "env-only",
+        "env_steps_per_s": a.num_envs * steps * repeats / wall,
+        "train_seconds": None,
+        "num_envs_total": a.num_envs,
+        "device": jax.devices()[0].device_kind,
     }
 
 
-def _speedups(results: list[dict[str, Any]]) -> None:
-    """Add ``speedup`` (steps/s over the 1-device figure of the same kind, task, batch
-    scheme) to each result in place."""
-    base: dict[tuple[Any, ...], float] = {}
-    for r in results:
-        if r["devices"] == 1:
-            base[(r["kind"], r["task"], r.get("scheme"))] = r["env_steps_per_s"]
-    for r in results:
-        b = base.get((r["kind"], r["task"], r.get("scheme")))
-        r["speedup"] = None if b is None else r["env_steps_per_s"] / b
+def add_speedups(rows: list[dict[str, Any]]) -> None:
+    """``speedup`` of each PPO row over the one-device PPO row of its task (in place);
+    the env-only row gets the one-device PPO rate over its own (``ppo_over_env``)."""
+    base = {
+        r["task"]: r["env_steps_per_s"] for r in rows if r["gpus"] == 1 and r["mode"] != "env-only"
+    }
+    for r in rows:
+        b = base.get(r["task"])
+        if r["mode"] == "env-only":
+            r["ppo_over_env"] = None if b is None else b / r["env_steps_per_s"]
+        r["speedup"] = None if b is None or r["mode"] == "env-only" else r["env_steps_per_s"] / b
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tasks", nargs="+", default=["Reacher-v0", "HexapodWalk-v0"])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=["HexapodWalk-v0"])
     parser.add_argument("--devices", nargs="+", type=int, default=[1, jax.device_count()])
-    parser.add_argument("--envs", type=int, default=8192, help="total envs (strong scaling)")
-    parser.add_argument("--steps", type=int, default=100, help="env steps per timed call")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--ppo-envs", type=int, default=4096)
-    parser.add_argument("--ppo-updates", type=int, default=4)
-    parser.add_argument("--skip-ppo", action="store_true")
-    parser.add_argument("--skip-env", action="store_true")
+    parser.add_argument("--modes", nargs="+", choices=MODES, default=["weak", "seeds"])
+    parser.add_argument("--chunks", type=int, default=3, help="timed chunks a row")
+    parser.add_argument("--num-envs", type=int, help="override the config's num_envs")
+    parser.add_argument("--total-steps", type=int, help="override the config's total_steps")
+    parser.add_argument("--env-only", action="store_true", help="add the env-alone row")
     parser.add_argument("--json", default=None, help=results_io.HELP)
     args = parser.parse_args(argv)
-    devices = sorted(set(args.devices))
-    for n in devices:
-        sharding.validate_batch(args.envs, n)
-        sharding.validate_batch(args.ppo_envs, n)
-    dev = jax.devices()[0]
-    machine = f"{platform.node()} jax {jax.__version__} {jax.device_count()} x {dev.device_kind}"
-    print(f"# {machine}", flush=True)
-    results: list[dict[str, Any]] = []
+    overrides = {
+        k: v for k, v in {"num_envs": args.num_envs, "total_steps": args.total_steps}.items() if v
+    }
+    print(
+        f"# jax {jax.__version__}, {jax.device_count()} x {jax.devices()[0].device_kind}",
+        flush=True,
+    )
+    rows: list[dict[str, Any]] = []
 
-    def save() -> None:
+    def report(row: dict[str, Any]) -> None:
+        rows.append(row)
+        add_speedups(rows)
+        print({k: v for k, v in row.items()}, flush=True)
         if args.json:
-            title = f"{', '.join(args.tasks)} on {devices} devices: env steps/s and PPO"
-            rec = results_io.record(args.json, title, results, extra={"args": vars(args)})
+            title = (
+                f"PPO end to end on {', '.join(args.tasks)} over {sorted(set(args.devices))} GPUs"
+            )
+            rec = results_io.record(args.json, title, rows, extra={"args": vars(args)})
             results_io.write(args.json, rec)
 
-    def report(r: dict[str, Any]) -> None:
-        results.append(r)
-        print(
-            f"{r['kind']:4s} {r['task']:16s} {r.get('scheme', '-'):6s} devices {r['devices']} "
-            f"envs {r['num_envs']:6d}  {r['env_steps_per_s']:14,.0f} env steps/s  "
-            f"call {r['median_call_s']:.4f} s  first {r['first_call_s']:.1f} s",
-            flush=True,
-        )
-        save()  # a run cut short still leaves what it measured
-
-    # env throughput of every task first, then PPO: the cheaper figures come first
-    if not args.skip_env:
-        for task in args.tasks:
-            for n in devices:
-                r = env_throughput(task, args.envs, n, args.steps, args.repeats)
-                report({**r, "scheme": "strong"})
-                if n > 1:
-                    r = env_throughput(task, args.envs * n, n, args.steps, args.repeats)
-                    report({**r, "scheme": "weak"})
-    if not args.skip_ppo:
-        for task in args.tasks:
-            for n in devices:
-                report(ppo_wall_time(task, args.ppo_envs, n, args.ppo_updates, args.repeats))
-    # weak scaling compares N devices at N x envs with one device at 1 x envs
-    base_weak = {
-        r["task"]: r["env_steps_per_s"] for r in results if r["kind"] == "env" and r["devices"] == 1
-    }
-    _speedups(results)
-    for r in results:
-        if r.get("scheme") == "weak":
-            r["speedup"] = r["env_steps_per_s"] / base_weak[r["task"]]
-    print("\nspeedup over 1 device:")
-    for r in results:
-        if r["devices"] > 1 and r.get("speedup") is not None:
-            print(
-                f"  {r['kind']:4s} {r['task']:16s} {r.get('scheme', 'strong'):6s} "
-                f"{r['devices']} devices: {r['speedup']:.2f}x"
-            )
-    save()
+    for task in args.tasks:
+        for n in sorted(set(args.devices)):
+            for mode in args.modes if n > 1 else ["weak"]:
+                report(ppo_row(task, mode, n, args.chunks, overrides))
+        if args.env_only:
+            report(env_row(task, 16 * 8, 3, overrides))
 
 
 if __name__ == "__main__":
