@@ -1,5 +1,6 @@
-"""``jaxenvs robot ID --listen tcp://HOST:PORT``: the task's robot simulated in MuJoCo C in
-real time behind the TCP link (:mod:`jaxenvs.deploy.simrobot`)."""
+"""``jaxenvs robot ID --listen tcp://HOST:PORT [--key-file FILE]``: the task's robot
+simulated in MuJoCo C in real time behind the TCP link (:mod:`jaxenvs.deploy.simrobot`);
+beyond the loopback only with a key (or ``--insecure``)."""
 
 from __future__ import annotations
 
@@ -31,10 +32,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--realtime", action="store_true", help="run under SCHED_FIFO (Linux, CAP_SYS_NICE)"
     )
+    parser.add_argument(
+        "--key-file",
+        metavar="FILE",
+        help="serve only a client that proves it holds this key (not readable by every user)",
+    )
+    parser.add_argument(
+        "--insecure",
+        action="store_true",
+        help="listen beyond this computer without a key (anyone who reaches the port drives it)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    from jaxenvs.deploy import simrobot
+    from jaxenvs.deploy import auth, simrobot
 
     checks.float_flag("--noise", args.noise, 0.0, 1e3)
     checks.float_flag("--latency-ms", args.latency_ms, 0.0, 1e4)
@@ -42,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     checks.float_flag("--seconds", args.seconds, 0.0, 1e7)
     checks.int_flag("--watchdog", args.watchdog, 1, 10**6)
     checks.int_flag("--seed", args.seed, 0)
-    simrobot.parse_address(args.listen)
+    key = auth.read_key(args.key_file) if args.key_file else None
+    simrobot.check_listen(args.listen, key, args.insecure)  # before the world is built
     world = simrobot.build_world(args.env_id, args.seed)
     opts = simrobot.LinkOptions(
         noise=args.noise,
@@ -57,4 +69,4 @@ def run(args: argparse.Namespace) -> int:
         from jaxenvs.deploy.loop import raise_priority
 
         print(f"robot: {raise_priority()}", file=sys.stderr, flush=True)
-    return simrobot.serve(world, args.listen, opts)
+    return simrobot.serve(world, args.listen, opts, key, args.insecure)

@@ -12,7 +12,14 @@ command through the robot's command map; with no valid command for ``watchdog``
 control periods, or after a ``hold``, it holds (action 0: zero force for a motor, the
 neutral pose for position servos). ``latency_ms`` delays each
 message in both directions, plus a uniform ``[0, jitter_ms]`` (so messages may arrive
-out of order, as on a real network). Bad messages are counted by reason and never stop it.
+out of order, as on a real network). Bad messages are counted by reason and never stop it
+(nor the listener: a connection that fails in any way is closed and the next one served).
+
+With a key (``jaxenvs robot --key-file FILE``) each connection starts with the challenge
+of :mod:`jaxenvs.deploy.auth`: a client that does not prove it holds the key within
+:data:`~jaxenvs.deploy.auth.AUTH_TIMEOUT` s gets a ``bye`` and no sensor frame, and none of
+its commands is applied. Without a key the robot listens only on a loopback address,
+unless told otherwise (``insecure``).
 
 JAX runs only while the world is built (the task's model, default params and initial
 states drawn by the task's own ``reset``); the real-time loop is MuJoCo and numpy.
@@ -36,7 +43,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from jaxenvs.deploy import wire
+from jaxenvs.deploy import auth, wire
 from jaxenvs.robots.interface import NOISE_STD, RobotSpec
 
 #: initial states drawn when the world is built (connection k starts from state k mod this)
@@ -124,6 +131,8 @@ class _Episode:
         self.inbox: list[tuple[float, int, dict[str, Any]]] = []
         self._tie = itertools.count()
         self.closed = ""
+        #: the client did not prove it holds the key (nothing was simulated)
+        self.refused = False
 
     def ctrl_of(self, action: np.ndarray) -> np.ndarray:
         w = self.world
@@ -141,7 +150,8 @@ class _Episode:
         return out
 
     def handle(self, msg: dict[str, Any]) -> None:
-        kind = msg["type"]
+        """Apply a valid command, hold on a hold, end on a bye; count anything else."""
+        kind = msg.get("type")
         try:
             if kind == "command":
                 seq, action = wire.parse_command(msg, len(self.world.spec.actuators), self.last_cmd)
@@ -156,6 +166,8 @@ class _Episode:
                 self.counts["malformed"] += 1
         except wire.BadMessage as bad:
             self.counts[bad.reason] += 1
+        except (ValueError, TypeError, OverflowError, RecursionError):
+            self.counts["malformed"] += 1  # a message the parsers missed: counted, never fatal
 
     def hold(self) -> None:
         """Action 0 on every actuator: zero force for a motor with a centred range, the
@@ -206,18 +218,73 @@ def _receive(ep: _Episode, rng: np.random.Generator, opts: LinkOptions, now: flo
         heapq.heappush(ep.inbox, (now + _delay(rng, opts), next(ep._tie), msg))
 
 
-def run_episode(world: World, conn: socket.socket, start: dict, opts: LinkOptions) -> _Episode:
-    """Simulate in real time for one client until it leaves (or ``opts.seconds``)."""
+def _hello(world: World, mac: str | None) -> bytes:
+    hello = {"type": "hello", "version": wire.VERSION, "privileged": True, **world.spec.to_json()}
+    return wire.encode(hello if mac is None else {**hello, "mac": mac})
+
+
+def _first(conn: socket.socket, reader: wire.FrameReader, end: float) -> dict[str, Any] | str:
+    """The client's first message before ``end`` (a monotonic time), or why none came."""
+    while True:
+        left = end - time.monotonic()
+        if left <= 0:
+            return f"no answer to the challenge within {auth.AUTH_TIMEOUT:g} s"
+        conn.settimeout(left)
+        try:
+            data = conn.recv(1 << 16)
+        except TimeoutError:
+            continue
+        except OSError:
+            return "link lost"
+        if not data:
+            return "the client left"
+        try:
+            messages = reader.feed(data)
+        except wire.FramingError:
+            return "framing lost"
+        if messages:
+            return messages[0]
+
+
+def answer_challenge(conn: socket.socket, key: bytes, reader: wire.FrameReader) -> str | dict:
+    """The robot's side of the handshake (:mod:`jaxenvs.deploy.auth`) on a blocking
+    ``conn``: send a challenge, read the answer; the hello's ``mac`` when the client proved
+    it holds ``key``, else ``{"refused": why}``."""
+    robot_nonce = auth.nonce()
+    conn.sendall(wire.encode({"type": "challenge", "version": wire.VERSION, "nonce": robot_nonce}))
+    msg = _first(conn, reader, time.monotonic() + auth.AUTH_TIMEOUT)
+    if isinstance(msg, str):
+        return {"refused": msg}
+    client_nonce = msg.get("nonce")
+    if (
+        msg.get("type") != "auth"
+        or not auth.valid_nonce(client_nonce)
+        or not auth.verify(key, "loop", robot_nonce, client_nonce, msg.get("mac"))
+    ):
+        return {"refused": auth.REFUSED}
+    return auth.proof(key, "robot", client_nonce, robot_nonce)
+
+
+def run_episode(
+    world: World, conn: socket.socket, start: dict, opts: LinkOptions, key: bytes | None = None
+) -> _Episode:
+    """Simulate in real time for one client until it leaves (or ``opts.seconds``); with a
+    ``key``, only after the client proved it holds it (else ``closed`` says why, and
+    ``refused`` is set)."""
     rng = np.random.default_rng(opts.seed)
     ep = _Episode(world, start, conn)
+    mac = None
+    if key is not None:
+        answer = answer_challenge(conn, key, ep.reader)
+        if isinstance(answer, dict):
+            ep.closed, ep.refused = answer["refused"], True
+            ep.send_now(wire.encode({"type": "bye", "reason": ep.closed}))
+            return ep
+        mac = answer
     conn.setblocking(False)
     dt = float(world.model.opt.timestep)
     t0 = time.monotonic()
-    ep.send_now(
-        wire.encode(
-            {"type": "hello", "version": wire.VERSION, "privileged": True, **world.spec.to_json()}
-        )
-    )
+    ep.send_now(_hello(world, mac))
     _publish(ep, rng, opts, t0)
     next_step = t0 + dt
     while not ep.closed:
@@ -246,6 +313,7 @@ def run_episode(world: World, conn: socket.socket, start: dict, opts: LinkOption
         readable, _, _ = select.select([conn], [], [], max(0.0, min(due) - now))
         if readable:
             _receive(ep, rng, opts, now)
+    ep.hold()
     ep.send_now(wire.encode({"type": "bye", "reason": ep.closed, "counts": dict(ep.counts)}))
     return ep
 
@@ -261,18 +329,64 @@ def parse_address(address: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-def serve(world: World, address: str, opts: LinkOptions) -> int:
-    """Listen at ``address``; print ``listening on tcp://HOST:PORT`` (the bound port) and
-    one line per finished connection; return 0."""
+def check_listen(address: str, key: bytes | None, insecure: bool = False) -> None:
+    """``ValueError`` (one line naming ``--key-file``) for listening on ``address`` beyond
+    this computer without a key, unless ``insecure``."""
+    host, _ = parse_address(address)
+    if key is None and not insecure and not auth.is_loopback(host):
+        raise ValueError(
+            f"listening on {host} without a key lets anyone who reaches the port drive the "
+            "robot: give --key-file FILE (or --insecure to allow it)"
+        )
+
+
+def _serve_one(
+    world: World, conn: socket.socket, start: dict, opts: LinkOptions, key: bytes | None
+) -> _Episode:
+    """One connection, whatever it sends; a failure the episode did not expect ends the
+    connection (held, counted as ``internal_error``), never the listener."""
+    try:
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        return run_episode(world, conn, start, opts, key)
+    except Exception as err:  # noqa: BLE001 (the listener outlives any one client)
+        ep = _Episode(world, start, conn)
+        ep.counts["internal_error"] += 1
+        ep.closed = f"{type(err).__name__}: {str(err)[:120]}"
+        return ep
+
+
+def serve(
+    world: World,
+    address: str,
+    opts: LinkOptions,
+    key: bytes | None = None,
+    insecure: bool = False,
+) -> int:
+    """Listen at ``address`` (beyond the loopback only with a ``key``, or ``insecure``:
+    :func:`check_listen`); print ``listening on tcp://HOST:PORT`` (the bound port) and one
+    line per finished connection; return 0. With ``opts.once``, return when the first
+    client that proved the key (any client, without a key) leaves."""
+    check_listen(address, key, insecure)
     host, port = parse_address(address)
     with socket.create_server((host, port)) as server:
         bound = server.getsockname()
         print(f"listening on tcp://{bound[0]}:{bound[1]}", flush=True)
-        for k in itertools.count():
-            conn, peer = server.accept()
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        served = 0
+        while True:
+            try:
+                conn, peer = server.accept()
+            except ConnectionAbortedError:  # the client left before it was accepted
+                continue
             with conn:
-                ep = run_episode(world, conn, world.starts[k % len(world.starts)], opts)
+                ep = _serve_one(world, conn, world.starts[served % len(world.starts)], opts, key)
+            if ep.refused:
+                print(
+                    f"robot {world.spec.robot}: refused {peer[0]}: {ep.closed}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                continue
+            served += 1
             bad = ", ".join(f"{n} {r}" for r, n in sorted(ep.counts.items())) or "none"
             print(
                 f"robot {world.spec.robot}: {ep.frames} control steps for {peer[0]}, "
@@ -285,4 +399,14 @@ def serve(world: World, address: str, opts: LinkOptions) -> int:
     return 0
 
 
-__all__ = ["STARTS", "LinkOptions", "World", "build_world", "parse_address", "run_episode", "serve"]
+__all__ = [
+    "STARTS",
+    "LinkOptions",
+    "World",
+    "answer_challenge",
+    "build_world",
+    "check_listen",
+    "parse_address",
+    "run_episode",
+    "serve",
+]

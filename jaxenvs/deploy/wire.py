@@ -3,14 +3,20 @@
 Framing: each message is a 4-byte big-endian unsigned length ``N`` (1 <= N <=
 :data:`MAX_FRAME`) followed by ``N`` bytes of UTF-8 JSON: one object with a ``"type"``.
 A frame whose length is out of range cannot be skipped (the stream has lost its framing):
-it ends the link. A well-framed message that is not valid (bad JSON, missing field, wrong
-size, non-finite number, an old sequence number) is counted under its reason and dropped.
+it ends the link. A well-framed message that is not valid (bad JSON, nested deeper than
+:data:`MAX_DEPTH`, missing field, wrong size, a number that does not fit a float, an old
+sequence number) is counted under its reason and dropped: nothing a peer sends raises
+anything here but :class:`BadMessage` and :class:`FramingError`. An integer of more than
+:data:`INT_DIGITS` digits is read as a float (so it is no sequence number, and a reading
+beyond a float's range is not finite).
 
 ==========  =========  ==================================================================
 type        from       fields
 ==========  =========  ==================================================================
+challenge   robot      KEYED LINK ONLY, first: ``version``, ``nonce`` (:mod:`.auth`)
+auth        loop       KEYED LINK ONLY, the answer: ``nonce``, ``mac``
 hello       robot      ``version``, :meth:`RobotSpec.to_json` fields, ``privileged``
-                       (bool: it also sends ``state``)
+                       (bool: it also sends ``state``); on a keyed link ``mac``
 sensors     robot      ``seq`` (int, +1 per frame), ``stamp`` (robot clock, s), ``acked``
                        (the last command seq applied, -1 before any), ``readings``
                        (sensor name -> list of ``size`` numbers)
@@ -18,7 +24,7 @@ state       robot      PRIVILEGED (a simulator only): ``seq`` (the sensors frame
                        ``stamp``, ``qpos``, ``qvel``, ``mocap_pos`` (lists)
 command     loop       ``seq`` (int, increasing), ``action`` (one number in [-1, 1] per
                        actuator, the robot's command map applies)
-hold        loop       ``seq``, ``reason``: safe stop (action 0 / hold position)
+hold        loop       ``seq`` (above every command's), ``reason``: safe stop (action 0)
 bye         either     ``reason``, and from the robot ``counts`` (bad messages by reason)
 ==========  =========  ==================================================================
 
@@ -40,6 +46,10 @@ import numpy as np
 VERSION = 1
 #: the largest frame either side accepts (bytes of JSON)
 MAX_FRAME = 1 << 20
+#: the deepest nesting of arrays and objects a message may have (the messages need 3)
+MAX_DEPTH = 16
+#: integers of more digits are read as floats (an int64 has 19)
+INT_DIGITS = 18
 _HEADER = struct.Struct(">I")
 #: reasons a message is counted as bad
 REASONS = ("malformed", "wrong_size", "non_finite", "stale", "out_of_range")
@@ -65,18 +75,59 @@ def encode(message: Mapping[str, Any]) -> bytes:
     return _HEADER.pack(len(body)) + body
 
 
+def _int(text: str) -> int | float:
+    """A JSON integer: an ``int`` up to :data:`INT_DIGITS` digits, a float beyond (never
+    Python's integer-string limit, never an integer no float can hold)."""
+    return int(text) if len(text.lstrip("-")) <= INT_DIGITS else float(text)
+
+
+def _too_deep(obj: Any) -> bool:
+    """Whether ``obj`` nests lists and dicts deeper than :data:`MAX_DEPTH` (no recursion)."""
+    stack = [(obj, 1)]
+    while stack:
+        item, depth = stack.pop()
+        children = item.values() if isinstance(item, dict) else item
+        for child in children:
+            if isinstance(child, (dict, list)):
+                if depth + 1 > MAX_DEPTH:
+                    return True
+                stack.append((child, depth + 1))
+    return False
+
+
+def decode(body: bytes) -> dict[str, Any]:
+    """The message of one frame's body; :class:`BadMessage` (``malformed``) when it is not
+    UTF-8 JSON, nests deeper than :data:`MAX_DEPTH` or is not an object with a string
+    ``type``."""
+    try:
+        obj = json.loads(body.decode(), parse_int=_int)
+    except UnicodeDecodeError:
+        raise BadMessage("malformed", "not UTF-8") from None
+    except RecursionError:
+        raise BadMessage("malformed", f"nested deeper than {MAX_DEPTH}") from None
+    except ValueError as err:  # JSONDecodeError, and any number the parser refuses
+        raise BadMessage("malformed", f"not JSON ({str(err)[:80]})") from None
+    if not isinstance(obj, dict) or not isinstance(obj.get("type"), str):
+        raise BadMessage("malformed", "not a JSON object with a string type")
+    if _too_deep(obj):
+        raise BadMessage("malformed", f"nested deeper than {MAX_DEPTH}")
+    return obj
+
+
 class FrameReader:
     """Incremental decoder: :meth:`feed` bytes as they arrive, get whole messages back.
 
-    Messages that are not JSON objects with a string ``type`` are counted in
-    :attr:`counts` under ``"malformed"``; a length out of range raises
-    :class:`FramingError`.
+    Frames that :func:`decode` refuses are counted in :attr:`counts` under
+    ``"malformed"`` (the latest one's reason in :attr:`last_bad`); a length out of range
+    raises :class:`FramingError`.
     """
 
     def __init__(self, counts: Counter[str] | None = None) -> None:
         self._buf = bytearray()
         #: bad messages by reason (``counts``, when given, is counted into)
         self.counts: Counter[str] = Counter() if counts is None else counts
+        #: why the latest malformed frame was refused ('' before any)
+        self.last_bad = ""
 
     def feed(self, data: bytes) -> list[dict[str, Any]]:
         """Decode every whole frame in the bytes received so far."""
@@ -91,14 +142,10 @@ class FrameReader:
             body = bytes(self._buf[_HEADER.size : _HEADER.size + n])
             del self._buf[: _HEADER.size + n]
             try:
-                obj = json.loads(body.decode())
-            except (UnicodeDecodeError, json.JSONDecodeError):
-                self.counts["malformed"] += 1
-                continue
-            if not isinstance(obj, dict) or not isinstance(obj.get("type"), str):
-                self.counts["malformed"] += 1
-                continue
-            out.append(obj)
+                out.append(decode(body))
+            except BadMessage as bad:
+                self.counts[bad.reason] += 1
+                self.last_bad = str(bad)
         return out
 
 
@@ -118,10 +165,23 @@ def _numbers(value: Any, size: int, what: str) -> np.ndarray:
         raise BadMessage("malformed", f"{what} must be a list of numbers")
     if len(value) != size:
         raise BadMessage("wrong_size", f"{what} has {len(value)} numbers, expected {size}")
-    arr = np.asarray(value, np.float64)
+    try:
+        arr = np.asarray(value, np.float64)
+    except OverflowError:  # an integer no float holds (one made in Python, not decoded)
+        raise BadMessage("non_finite", f"{what} does not fit a float") from None
     if not np.all(np.isfinite(arr)):
         raise BadMessage("non_finite", f"{what} is not finite")
     return arr
+
+
+def _number(value: Any) -> bool:
+    """A finite JSON number (not a bool)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def command(seq: int, action: np.ndarray) -> dict[str, Any]:
@@ -155,11 +215,12 @@ def parse_sensors(
     """``(seq, stamp, acked, readings)`` of a sensors message with every sensor of
     ``sizes`` (name -> size); :class:`BadMessage` otherwise."""
     readings = obj.get("readings")
-    stamp, acked = obj.get("stamp"), obj.get("acked", -1)
-    if not isinstance(readings, dict) or not isinstance(stamp, (int, float)):
-        raise BadMessage("malformed", "sensors needs readings (an object) and stamp")
-    if not isinstance(acked, int) or not math.isfinite(stamp):
-        raise BadMessage("malformed", "acked must be an integer, stamp finite")
+    stamp: Any = obj.get("stamp")
+    acked = obj.get("acked", -1)
+    if not isinstance(readings, dict) or not _number(stamp):
+        raise BadMessage("malformed", "sensors needs readings (an object) and a finite stamp")
+    if not isinstance(acked, int) or isinstance(acked, bool) or acked < -1:
+        raise BadMessage("malformed", "acked must be an integer >= -1")
     if set(readings) != set(sizes):
         raise BadMessage("wrong_size", f"readings of {sorted(readings)}, expected {sorted(sizes)}")
     out = {name: _numbers(readings[name], size, name) for name, size in sizes.items()}
@@ -198,10 +259,13 @@ __all__ = [
     "MAX_FRAME",
     "REASONS",
     "VERSION",
+    "INT_DIGITS",
+    "MAX_DEPTH",
     "BadMessage",
     "FrameReader",
     "FramingError",
     "command",
+    "decode",
     "encode",
     "parse_command",
     "parse_sensors",
