@@ -145,7 +145,7 @@ def median_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
 def draw(log: Path, gif: Path, every: int) -> None:
     """A GIF of a deploy log's ground truth, every ``every`` control steps; the red marker
     sits where the command in force would take the body in 1.5 s."""
-    from joystick_seeds import render_drive
+    from seeds import render_drive
 
     from jaxenvs.deploy.log import read_log
 
