@@ -5,6 +5,7 @@ from __future__ import annotations
 from .common import Cells, Rec, Row, Table, one, rate, rows
 
 FILES = ("scaling_h200x2_reacher_walker",)
+GPU_FILES = ("scaling_gpu",)
 
 
 def _per_call(r: Row) -> str:
@@ -46,7 +47,32 @@ def scaling_ppo(recs: list[Rec]) -> Cells:
     return cells
 
 
+def scaling_gpu(recs: list[Rec]) -> Cells:
+    """PPO end to end per mode and GPU count (benchmarks/scaling.py), the env alone last."""
+    (rec,) = recs
+    cells = [["task", "mode", "GPUs", "envs", "env steps/s", "speed-up", "first chunk"]]
+    for r in rec["rows"]:
+        if r["mode"] == "env-only":
+            ppo = f"PPO {r['ppo_over_env']:.2f}x of it"
+            cells.append([r["task"], "env alone", "1", f"{r['num_envs_total']:,}",
+                          rate(r["env_steps_per_s"]), ppo, "-"])  # fmt: skip
+            continue
+        cells.append(
+            [
+                r["task"],
+                "one GPU" if r["gpus"] == 1 else r["mode"],
+                str(r["gpus"]),
+                f"{r['num_envs_total']:,}",
+                rate(r["env_steps_per_s"]),
+                f"**{r['speedup']:.2f}x**",
+                f"{r['first_chunk_s']:.1f} s",
+            ]
+        )
+    return cells
+
+
 TABLES = {
     "scaling-env": Table(FILES, scaling_env),
     "scaling-ppo": Table(FILES, scaling_ppo),
+    "scaling-gpu": Table(GPU_FILES, scaling_gpu),
 }
