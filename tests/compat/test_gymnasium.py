@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import pickle
 
 import gymnasium as gym
 import jax
@@ -10,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import requires
-from gymnasium.error import ResetNeeded
+from gymnasium.error import ClosedEnvironmentError, ResetNeeded
 from gymnasium.utils.env_checker import check_env
 from gymnasium.vector import AutoresetMode
 from host_devices import run_with_devices
@@ -236,6 +238,46 @@ def test_order_enforcing_and_close():
     wrapped.close()
     raw.close()
     raw.close()
+
+
+def _steps(env, actions):
+    return [env.step(a) for a in actions]
+
+
+def test_single_env_deep_copies_and_pickles():
+    """A copy (deepcopy or pickle) of a started env goes on from the same state and seeding,
+    apart from the original; an env not yet reset copies too."""
+    env = gym.make("jaxenvs/CartpoleBalance-v0")
+    env.reset(seed=3)
+    env.step(np.array([0.5], np.float32))
+    twin, packed = copy.deepcopy(env), pickle.loads(pickle.dumps(env))
+    actions = [np.array([a], np.float32) for a in (1.0, -0.3, 0.7)]
+    runs = [(_steps(e, actions), e.reset()[0]) for e in (twin, env, packed)]
+    for steps, start in runs[1:]:
+        np.testing.assert_array_equal(start, runs[0][1])  # the same np_random
+        for a, b in zip(runs[0][0], steps, strict=True):
+            np.testing.assert_array_equal(a[0], b[0])
+            assert a[1:] == b[1:]
+    assert twin.unwrapped._fns is env.unwrapped._fns  # the compiled functions are shared
+    fresh = pickle.loads(pickle.dumps(gym.make("jaxenvs/CartPole-v0")))
+    obs, _ = fresh.reset(seed=0)
+    np.testing.assert_array_equal(obs, gym.make("jaxenvs/CartPole-v0").reset(seed=0)[0])
+
+
+def test_a_closed_env_refuses_to_run():
+    env = gym.make("jaxenvs/CartPole-v0", render_mode="rgb_array", width=32, height=24)
+    env.reset(seed=0)
+    env.close()
+    for call in (lambda: env.step(0), env.reset, env.render):
+        with pytest.raises(ClosedEnvironmentError, match="closed"):
+            call()
+    envs = _vec()
+    envs.reset(seed=0)
+    envs.close()
+    with pytest.raises(ClosedEnvironmentError, match="closed"):
+        envs.step(np.ones(N, np.int64))
+    with pytest.raises(ClosedEnvironmentError, match="closed"):
+        envs.reset(seed=0)
 
 
 def test_render_modes(monkeypatch):
@@ -562,6 +604,39 @@ def test_vector_seeding_and_bad_input(short_vec):
         fresh.step(np.ones(N, np.int64))
     fresh.close()
     fresh.close()
+
+
+def test_vector_reset_takes_a_seed_per_env(short_vec):
+    """reset(seed=...) seeds the envs as Gymnasium's SyncVectorEnv seeds its own: a list
+    gives one seed (or None) per env, an int s gives env i s + i; env i seeded with s
+    starts where a single env's reset(seed=s) starts."""
+    ref = _reference(AutoresetMode.NEXT_STEP)
+    single = facade.JaxEnv("CartPole-v0", episode_length=SHORT)
+    obs, info = short_vec.reset(seed=[0, 1, 2, 3])
+    assert info == {}
+    np.testing.assert_array_equal(obs, ref.reset(seed=[0, 1, 2, 3])[0])
+    for i in range(N):
+        np.testing.assert_array_equal(obs[i], single.reset(seed=i)[0])
+    np.testing.assert_array_equal(short_vec.reset(seed=7)[0], ref.reset(seed=7)[0])
+    same, _ = short_vec.reset(seed=[5] * N)
+    assert (same == same[0]).all()
+    mixed, _ = short_vec.reset(seed=(0, None, 2, None))
+    np.testing.assert_array_equal(mixed[[0, 2]], obs[[0, 2]])
+    short_vec.step(np.ones(N, np.int64))
+    kept = short_vec.unwrapped.state.obs
+    mask = np.array([False, True, False, True])
+    part, _ = short_vec.reset(seed=[10, 11, 12, 13], options={"reset_mask": mask})
+    np.testing.assert_array_equal(part[~mask], np.asarray(kept)[~mask])
+    np.testing.assert_array_equal(part[1], single.reset(seed=11)[0])
+    for bad, match in [
+        ([0, 1], "a list of 4 seeds"),
+        ([0, -1, 2, 3], "non-negative"),
+        (True, "non-negative"),
+        ("seven", "non-negative"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            short_vec.reset(seed=bad)
+    ref.close()
 
 
 def test_compiled_functions_cache_is_bounded(monkeypatch):

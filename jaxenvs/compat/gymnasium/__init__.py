@@ -38,6 +38,7 @@ import warnings
 from typing import Any
 
 import gymnasium
+import jax
 import numpy as np
 from gymnasium.error import ResetNeeded
 
@@ -112,6 +113,8 @@ class JaxEnv(gymnasium.Env):
         checks.check_render_mode(render_mode, human_ok=True)
         self._fns = compiled(env_id, overrides)
         self.env_id = env_id
+        self._overrides = dict(overrides)
+        self._closed = False
         self.jax_env: Env = self._fns.env
         self.observation_space = self.jax_env.observation_space
         self.action_space = self.jax_env.action_space
@@ -138,6 +141,7 @@ class JaxEnv(gymnasium.Env):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
+        checks.check_open(self._closed, self.env_id)
         super().reset(seed=seed)
         checks.check_options(options, ())
         self._bufs = self._fns.reset(checks.seed32(self.np_random))
@@ -147,6 +151,7 @@ class JaxEnv(gymnasium.Env):
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._bufs is None:
+            checks.check_open(self._closed, self.env_id)
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         if type(action) is not np.ndarray or action.shape != self._float_shape:
             action = checks.check_action(self.jax_env, action)  # else a float32 array of the shape
@@ -164,6 +169,7 @@ class JaxEnv(gymnasium.Env):
                 "render() called without a render_mode; pass render_mode='rgb_array' to make()"
             )
             return None
+        checks.check_open(self._closed, self.env_id)
         if self._bufs is None:
             raise ResetNeeded("Cannot call env.render() before calling env.reset()")
         if self.render_mode == "human":
@@ -180,10 +186,34 @@ class JaxEnv(gymnasium.Env):
         return self._renderer.render_state(self.state)
 
     def close(self) -> None:
+        """Release the renderer and the state; a closed env refuses ``reset``, ``step``
+        and ``render`` (``ClosedEnvironmentError``)."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        self._bufs = None
+        self._closed = True
         super().close()
+
+    def __getstate__(self) -> dict[str, Any]:
+        """What a copy or a pickle keeps: the construction arguments, the seeding and the
+        state (on the host); the jitted functions and the renderer are rebuilt."""
+        kept = {k: v for k, v in self.__dict__.items() if k not in _REBUILT}
+        kept["_bufs"] = None if self._bufs is None else tuple(np.array(b) for b in self._bufs)
+        return kept
+
+    def __setstate__(self, kept: dict[str, Any]) -> None:
+        self.__dict__.update(kept)
+        self._fns = compiled(self.env_id, self._overrides)
+        self.jax_env = self._fns.env
+        self._words = self._fns.words
+        self._renderer = None
+        if self._bufs is not None:
+            self._bufs = tuple(jax.device_put(b) for b in self._bufs)
+
+
+#: a single env's attributes a copy or pickle rebuilds instead of copying
+_REBUILT = frozenset({"_fns", "jax_env", "_words", "_renderer"})
 
 
 registry.add_listener(register_spec)

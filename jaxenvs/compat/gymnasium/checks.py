@@ -6,6 +6,8 @@ import os
 from typing import Any
 
 import numpy as np
+from gymnasium.error import ClosedEnvironmentError
+from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode
 
 from jaxenvs.core import Env
@@ -102,6 +104,46 @@ def check_options(options: dict[str, Any] | None, allowed: tuple[str, ...]) -> d
 def seed32(rng: np.random.Generator) -> np.uint32:
     """A uint32 drawn from Gymnasium's ``np_random``: the seed of the next JAX key."""
     return rng.integers(0, 2**32, dtype=np.uint32)
+
+
+def _is_seed(seed: Any) -> bool:
+    return isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and bool(seed >= 0)
+
+
+def env_seeds(seed: Any, num_envs: int, rng: np.random.Generator) -> np.ndarray:
+    """The uint32 seed of each env's JAX key for a vector env's ``reset(seed=)``, as
+    ``SyncVectorEnv`` seeds its envs: ``None``: every env's drawn from ``rng``; an int
+    ``s``: env i's from ``s + i``; a list of ``num_envs`` ints or Nones: env i's from its
+    entry (drawn from ``rng`` where None). Env i seeded with ``s`` starts where a single
+    env's ``reset(seed=s)`` starts. A bad seed raises ``ValueError`` in one line."""
+    if seed is None:
+        seeds: list[Any] = [None] * num_envs
+    elif _is_seed(seed):
+        seeds = [int(seed) + i for i in range(num_envs)]
+    elif isinstance(seed, (list, tuple, np.ndarray)) and all(
+        s is None or _is_seed(s) for s in seed
+    ):
+        seeds = list(seed)
+    else:
+        raise ValueError(
+            "seed must be None, a non-negative int, or a list of non-negative ints or Nones "
+            f"(one per env), got {seed!r}"
+        )
+    if len(seeds) != num_envs:
+        raise ValueError(f"seed: a list of {num_envs} seeds (one per env), got {len(seeds)}")
+    out = np.empty(num_envs, np.uint32)
+    drawn = [i for i, s in enumerate(seeds) if s is None]
+    out[drawn] = rng.integers(0, 2**32, size=len(drawn), dtype=np.uint32)
+    for i, s in enumerate(seeds):
+        if s is not None:
+            out[i] = seed32(seeding.np_random(int(s))[0])
+    return out
+
+
+def check_open(closed: bool, env_id: str) -> None:
+    """Refuse to use an env after ``close()``."""
+    if closed:
+        raise ClosedEnvironmentError(f"jaxenvs/{env_id} was closed; make a new env to go on")
 
 
 def render_fps(env: Env) -> int:

@@ -39,11 +39,11 @@ class Programs:
     """Jitted functions of one (task config, batch, autoreset mode), shared by the facade
     instances made with it. State travels as ``bufs`` in ``words`` form.
 
-    ``reset(seed) -> bufs``; ``step(bufs, action) -> bufs``, which donates its ``bufs``
-    (except a SAME_STEP vector env's);
-    ``unpack(bufs) -> State``. Vector env only (``batched`` set): ``reset_masked(bufs,
-    seed, mask) -> bufs`` (donates its ``bufs``) draws fresh starts for the envs where
-    ``mask`` holds.
+    ``reset(seed) -> bufs`` (a uint32 seed of the JAX key; a vector env's: one per env,
+    env i started with ``jax.random.key(seed[i])``); ``step(bufs, action) -> bufs``, which
+    donates its ``bufs`` (except a SAME_STEP vector env's); ``unpack(bufs) -> State``.
+    Vector env only (``batched`` set): ``reset_masked(bufs, seeds, mask) -> bufs``
+    (donates its ``bufs``) starts afresh the envs where ``mask`` holds, each with its seed.
     """
 
     env: Env
@@ -122,16 +122,17 @@ def _build_vector(
     words = Words(example, info_keys(env), (num_envs,), final_obs=same_step)
     advance = _advance(task, mode)
     restart = _placed(task, lambda state, mask, keys: _restart(task, state, mask, keys))
+    start = _placed(task, lambda keys: task.fresh_starts(keys))
+    keys_of = jax.vmap(jax.random.key)
 
-    def reset(seed: jax.Array) -> Bufs:
-        return words.pack(task.reset(jax.random.key(seed)))
+    def reset(seeds: jax.Array) -> Bufs:
+        return words.pack(start(keys_of(seeds)))
 
     def step(bufs: Bufs, action: jax.Array) -> Bufs:
         return words.pack(advance(words.unpack(bufs), action))
 
-    def reset_masked(bufs: Bufs, seed: jax.Array, mask: jax.Array) -> Bufs:
-        keys = jax.random.split(jax.random.key(seed), num_envs)
-        return words.pack(restart(words.unpack(bufs), mask, keys))
+    def reset_masked(bufs: Bufs, seeds: jax.Array, mask: jax.Array) -> Bufs:
+        return words.pack(restart(words.unpack(bufs), mask, keys_of(seeds)))
 
     # the batched env's own auto-reset (SAME_STEP) ran ~5% slower with its state donated
     # (Reacher, 256 envs, 2 cores); the other modes' steps gain or lose nothing measurable

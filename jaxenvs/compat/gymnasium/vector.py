@@ -107,28 +107,36 @@ class JaxVectorEnv(VectorEnv):
         return None if self._bufs is None else self._fns.unpack(self._bufs)
 
     def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
     ) -> tuple[np.ndarray, dict[str, Any]]:
-        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
-            raise ValueError(f"seed must be an int or None, got {type(seed).__name__}")
-        super().reset(seed=seed)
+        """Reset every env (or those of ``options["reset_mask"]``). ``seed`` as
+        ``SyncVectorEnv`` takes it: an int ``s`` seeds env i with ``s + i`` (and
+        ``np_random`` with ``s``); a list gives one seed (or None) per env; env i seeded
+        with ``s`` starts where ``gymnasium.make``'s env starts after ``reset(seed=s)``."""
+        checks.check_open(self.closed, self.env_id)
+        seeds = checks.env_seeds(seed, self.num_envs, self.np_random)
+        if isinstance(seed, (int, np.integer)):
+            super().reset(seed=int(seed))  # np_random, which later unseeded resets draw from
         opts = checks.check_options(options, ("reset_mask",))
-        seed32 = checks.seed32(self.np_random)
         if "reset_mask" not in opts:
-            self._bufs = self._fns.reset(seed32)
+            self._bufs = self._fns.reset(seeds)
             self._ended[:] = False
         else:
             mask = checks.check_reset_mask(opts["reset_mask"], self.num_envs)
             if self._bufs is None:
                 raise ResetNeeded("reset with a reset_mask needs a full reset() first")
             assert self._fns.reset_masked is not None
-            self._bufs = self._fns.reset_masked(self._bufs, seed32, mask)
+            self._bufs = self._fns.reset_masked(self._bufs, seeds, mask)
             self._ended[mask] = False
         return self._fns.words.report_batch(self._bufs)["obs"], {}
 
     def step(
         self, actions: Any
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        checks.check_open(self.closed, self.env_id)
         if self._bufs is None:
             raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         if self.autoreset_mode is AutoresetMode.DISABLED and self._ended.any():
@@ -158,6 +166,7 @@ class JaxVectorEnv(VectorEnv):
                 "render() called without a render_mode; pass render_mode='rgb_array'"
             )
             return None
+        checks.check_open(self.closed, self.env_id)
         if self._bufs is None:
             raise ResetNeeded("Cannot call render() before calling reset()")
         if self._renderer is None:
@@ -171,9 +180,12 @@ class JaxVectorEnv(VectorEnv):
         return tuple(self._renderer.frame(qpos[i], mpos[i], mquat[i]) for i in range(self.num_envs))
 
     def close_extras(self, **kwargs: Any) -> None:
+        """Release the renderer and the state; a closed env refuses ``reset``, ``step``
+        and ``render`` (``ClosedEnvironmentError``)."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+        self._bufs = None
 
 
 def _infos(values: dict[str, np.ndarray], reporting: np.ndarray) -> dict[str, Any]:
