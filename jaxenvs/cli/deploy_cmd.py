@@ -4,12 +4,12 @@ policy on a robot in real time (:mod:`jaxenvs.deploy.loop`)."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import signal
 import subprocess
 import sys
 import tempfile
-from pathlib import Path
 from typing import Any
 
 from jaxenvs.cli import checks
@@ -47,6 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         help="stop after this long without sensors (default 10 periods)",
     )
+    parser.add_argument(
+        "--key-file",
+        metavar="FILE",
+        help="prove this key to the robot, and have it prove it back (jaxenvs robot "
+        "--key-file; with sim, the simulated robot is keyed with it)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="sim: initial state, noise")
     parser.add_argument(
         "--realtime",
@@ -75,6 +81,8 @@ def _start_sim(args: argparse.Namespace) -> subprocess.Popen[str]:
         "--seed",
         str(args.seed),
     ]
+    if args.key_file:
+        cmd += ["--key-file", args.key_file]
     errors = tempfile.TemporaryFile("w+")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errors, text=True)
     proc.errors = errors  # type: ignore[attr-defined]
@@ -114,38 +122,41 @@ def run(args: argparse.Namespace) -> int:
     checks.float_flag("--max-late-ms", args.max_late_ms, 0.0, 1e6)
     checks.float_flag("--sensor-timeout-ms", args.sensor_timeout_ms, 0.0, 1e6)
     checks.int_flag("--seed", args.seed, 0)
-    from jaxenvs.deploy import loop, simrobot
+    from jaxenvs.deploy import auth, loop, simrobot
+    from jaxenvs.deploy.commands import CommandInput
 
     if args.robot != "sim":
         simrobot.parse_address(args.robot)
         if args.latency_ms or args.jitter_ms or args.noise:
             raise ValueError("--latency-ms, --jitter-ms and --noise set up --robot sim")
+    key = auth.read_key(args.key_file) if args.key_file else None
     policy = loop.HostPolicy(args.policy)
     if policy.metadata["env_id"] != args.env:
         raise ValueError(
             f"{args.policy} is a policy of {policy.metadata['env_id']}, not {args.env}"
         )
-    commands = loop.CommandInput(args.task_input) if args.task_input else None
+    commands = CommandInput(args.task_input) if args.task_input else None
     if commands is not None:  # a script of the wrong size fails before anything starts
         from jaxenvs import registry
 
         shape = getattr(registry.spec(args.env).factory, "task_input_shape", None)
         if shape is not None:
             commands.expect(tuple(shape), args.env)
-    signal.signal(signal.SIGTERM, _interrupt)
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     proc = _start_sim(args) if args.robot == "sim" else None
     try:
-        return _deploy(args, policy, commands, proc)
+        return _deploy(args, policy, commands, proc, key)
     finally:
         if proc is not None and proc.poll() is None:
             _stop(proc)
+        signal.signal(signal.SIGTERM, previous)
 
 
-def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> int:
+def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any, key: Any) -> int:
     import jaxenvs
     from jaxenvs.deploy import link as link_mod
     from jaxenvs.deploy import loop
-    from jaxenvs.deploy.log import LogWriter
+    from jaxenvs.deploy.log import LogError, LogWriter
     from jaxenvs.robots.interface import HostTask, LinkError, spec_of
 
     env = jaxenvs.make(args.env, physics="c")
@@ -155,9 +166,9 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
     shaping = {k: trained[k] for k in getattr(env, "deploy_fields", ()) if k in trained}
     if shaping:
         env = jaxenvs.make(args.env, physics="c", **shaping)
-    if str(env.observation_size) != policy.metadata["observation_size"]:
+    if str(env.observation_size) != policy.metadata.get("observation_size"):
         raise ValueError(
-            f"the policy takes {policy.metadata['observation_size']} observation values, "
+            f"the policy takes {policy.metadata.get('observation_size')} observation values, "
             f"{args.env} gives {env.observation_size}"
         )
     if abs(float(policy.metadata["control_dt"]) - env.control_dt) > 1e-9:
@@ -173,31 +184,59 @@ def _deploy(args: argparse.Namespace, policy: Any, commands: Any, proc: Any) -> 
         ),
     )
     address = _address_of(proc) if proc is not None else args.robot
-    robot = link_mod.TcpRobot(address)
+    robot = link_mod.TcpRobot(address, key=key)
     log = LogWriter(args.log) if args.log else None
     try:
         rec = _drive(robot, spec, host, env, policy, opts, log, commands, args.realtime)
-    except LinkError as err:
+    except (LinkError, LogError) as err:
         rec = loop.Record(dt=env.control_dt, error=str(err))
     except BaseException:
         if log is not None:
-            log.close()
+            with contextlib.suppress(LogError):  # the first failure is the one to tell
+                log.close()
         raise
     finally:
         robot.close()
     s = loop.summary(rec, robot, policy, args.env, args.seconds)
     if log is not None:
-        log.write("/deploy/summary", s)
-        log.write("/deploy/event", {"event": "end", "reason": rec.error or "done"})
-        log.close()
-    if args.summary:
-        Path(args.summary).write_text(json.dumps(s, indent=2) + "\n")
+        log_error = _finish_log(log, s, rec)
+        if log_error and not rec.error:
+            rec.error = s["error"] = log_error
+    summary_error = _write_summary(args.summary, s)
     _stop(proc)
-    if rec.error:
-        print(f"jaxenvs deploy: error: {rec.error} (after {rec.steps} steps)", file=sys.stderr)
+    if rec.error or summary_error:
+        error = rec.error or summary_error
+        print(f"jaxenvs deploy: error: {error} (after {rec.steps} steps)", file=sys.stderr)
         return 1
     print(loop.one_line(s))
     return 0
+
+
+def _finish_log(log: Any, s: dict, rec: Any) -> str | None:
+    """Write the summary and the end into the log and finish it; why it failed, if it
+    did (the file then holds every whole record written before)."""
+    from jaxenvs.deploy.log import LogError
+
+    try:
+        log.write("/deploy/summary", s)
+        log.write("/deploy/event", {"event": "end", "reason": rec.error or "done"})
+        log.close()
+    except LogError as err:
+        return str(err)
+    return log.failed or None
+
+
+def _write_summary(path: str | None, s: dict) -> str | None:
+    """Write the JSON summary to ``path`` (atomically); why it failed, if it did."""
+    if not path:
+        return None
+    from jaxenvs import files
+
+    try:
+        files.write_text(path, json.dumps(s, indent=2) + "\n")
+    except OSError as err:
+        return f"cannot write the summary {path}: {err.strerror or err}"
+    return None
 
 
 def _drive(
@@ -214,6 +253,8 @@ def _drive(
     import numpy as np
 
     from jaxenvs.deploy import loop
+    from jaxenvs.deploy.commands import input_range
+    from jaxenvs.deploy.link import check_actuator_limits
 
     model = env.sim.physics_mj_model
     truth = {
@@ -223,9 +264,10 @@ def _drive(
     }
     task_shape = host.warm(spec.sizes(), truth)  # compile before the robot's clock starts
     if commands is not None:
-        commands.expect(task_shape, spec.env_id)
+        commands.expect(task_shape, spec.env_id, input_range(env))
     theirs = robot.connect()
     spec.check_matches(theirs)
+    check_actuator_limits(spec, theirs)
     if robot.privileged:
         robot.set_state_sizes(model.nq, model.nv, model.nmocap)
     elif host.needs_input and commands is None:

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from jaxenvs.cli import checks
-
 HELP = "export the greedy policy of a PPO run directory as ONNX or npz (numpy runtime)"
 
 
@@ -21,8 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from jaxenvs.deploy import export
 
-    checks.int_flag("--seed", args.seed, 0)
     export.output_path(args.run_dir, args.format, args.out)  # fail before restoring
+    export.check_seed(args.run_dir, args.seed)
     path, policy = export.export(args.run_dir, args.format, args.out, args.seed)
     meta = policy.metadata
     kind = (

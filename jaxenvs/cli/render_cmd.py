@@ -147,7 +147,9 @@ def _render_log(args: argparse.Namespace, camera: str | int | None) -> int:
     hello = messages["/robot/hello"]
     if not hello:
         raise ValueError(f"{args.log}: no /robot/hello message (not a jaxenvs deploy log)")
-    env_id = hello[0]["env_id"]
+    env_id = hello[0].get("env_id")
+    if not isinstance(env_id, str):
+        raise ValueError(f"{args.log}: its /robot/hello names no env id (a damaged log)")
     if args.env_id not in (None, env_id):
         raise ValueError(f"{args.log} is a run of {env_id}, not {args.env_id}")
     env = jaxenvs.make(env_id, physics="c")

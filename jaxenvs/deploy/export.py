@@ -141,6 +141,18 @@ def _actor_layers(params: Any, hidden: tuple[int, ...], where: Path) -> list[tup
         ) from None
 
 
+def check_seed(run_dir: str | Path, seed: int | None) -> None:
+    """:class:`ExportError` naming the run's range when ``seed`` is not one of its seeds
+    (read from its config: nothing is restored)."""
+    from jaxenvs.run.run_config import load_run_config
+
+    if seed is None:
+        return
+    num_seeds = int(load_run_config(run_dir).train.num_seeds)
+    if not 0 <= seed < num_seeds:
+        raise ExportError(f"--seed must be between 0 and {num_seeds - 1} for {run_dir}")
+
+
 def policy_of_run(run_dir: str | Path, seed: int | None = None) -> NumpyPolicy:
     """The greedy policy of seed ``seed`` (default: the best) of a PPO run directory."""
     import jax
@@ -266,10 +278,14 @@ def onnx_model(policy: NumpyPolicy) -> Any:
 # ---------------------------------------------------------------------------- writing
 def output_path(run_dir: str | Path, fmt: str, out: str | Path | None) -> Path:
     """Where ``export`` writes: ``out``, or ``RUN/exported_policy.<fmt>``; raises
-    :class:`ExportError` for an unknown format or a place that cannot be written."""
+    :class:`ExportError` for an unknown format, an ``out`` named as the other format
+    (``--format npz --out m.onnx``) or a place that cannot be written."""
     if fmt not in FORMATS:
         raise ExportError(f"unknown format {fmt!r}; choose from {', '.join(FORMATS)}")
     path = Path(out) if out is not None else Path(run_dir) / f"{DEFAULT_NAME}.{fmt}"
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix in FORMATS and suffix != fmt:
+        raise ExportError(f"--out {path} is named as {suffix}, but --format is {fmt}")
     if path.is_dir():
         raise ExportError(f"cannot write {path}: it is a directory")
     if not path.parent.is_dir():
@@ -298,6 +314,7 @@ __all__ = [
     "DEFAULT_NAME",
     "FORMATS",
     "ExportError",
+    "check_seed",
     "export",
     "npz_bytes",
     "onnx_model",

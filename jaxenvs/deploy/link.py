@@ -44,8 +44,8 @@ class TcpRobot:
         self.host, self.port = parse_address(address)
         self.timeout = timeout
         self.sock: socket.socket | None = None
-        self.reader = wire.FrameReader()
         self.counts: Counter[str] = Counter()
+        self.reader = wire.FrameReader(self.counts)
         self.robot_counts: dict[str, int] = {}
         self.spec: RobotSpec | None = None
         self.privileged = False
@@ -71,8 +71,10 @@ class TcpRobot:
         hello = self._handshake(self._first_message())
         try:
             self.spec = RobotSpec.from_json(hello)
-        except (ValueError, OverflowError) as err:
+        except ValueError as err:
             raise ValueError(f"{self.address}: {err}") from None
+        except OverflowError as err:  # an integer field given as a huge float
+            raise ValueError(f"{self.address}: bad robot description: {err}") from None
         self.privileged = hello.get("privileged", False) is True
         self._sizes = self.spec.sizes()
         sock.setblocking(False)
@@ -168,11 +170,13 @@ class TcpRobot:
 
     def _feed(self, data: bytes) -> list[dict[str, Any]]:
         """Decode ``data``; :class:`LinkError` naming the fault for a malformed frame."""
+        before = self.counts["malformed"]
         try:
             messages = self.reader.feed(data)
         except wire.FramingError as err:
+            self.counts["malformed"] += 1
             raise LinkError(f"malformed message from the robot ({err})") from None
-        if self.reader.counts["malformed"]:
+        if self.counts["malformed"] > before:
             raise LinkError(f"malformed message from the robot ({self.reader.last_bad})")
         return messages
 

@@ -9,14 +9,16 @@ the newest sensor frame, computes the observation with the task's own function
 * **Safety**: the loop stops, commands a hold and raises :class:`DeployError` (one line
   naming the cause) when the link fails or the robot sends something malformed
   (:class:`~jaxenvs.robots.interface.LinkError`), no sensor frame arrives for
-  ``sensor_timeout_ms``, the policy's output or the observation is not finite, or a
-  command goes out more than ``max_late_ms`` after its tick (an overrun). The log is
-  finished on every exit.
+  ``sensor_timeout_ms``, the policy's output or the observation is not finite, a
+  command goes out more than ``max_late_ms`` after its tick (an overrun), the log cannot
+  be written (:class:`~jaxenvs.deploy.log.LogError`: a full disk), or anything else fails
+  (named with its exception's type). The log is finished on every exit it can be.
 * **Ground truth**: a simulated robot's privileged state gives the task's state (e.g.
   Reacher's target), reward and termination through the task's own functions: the summary's
   ``return`` and ``terminated``. A robot without it reports ``return: null``; a task
-  input (the target, a joystick command) then comes from :class:`CommandInput`. The loop
-  ends at termination (the episode is over), holding.
+  input (the target, a joystick command) then comes from
+  :class:`~jaxenvs.deploy.commands.CommandInput`. The loop ends at termination (the
+  episode is over), holding.
 """
 
 from __future__ import annotations
@@ -25,7 +27,6 @@ import dataclasses
 import math
 import os
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -33,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from jaxenvs.deploy.commands import CommandInput
+from jaxenvs.deploy.log import LogError
 from jaxenvs.robots.interface import LinkError
 
 
@@ -41,41 +44,81 @@ class DeployError(RuntimeError):
 
 
 # ---------------------------------------------------------------------------- the policy
+#: the first bytes of a zip archive (an ``.npz``); an ONNX model is a protobuf, with none
+ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+
+
+def policy_format(path: Path) -> str:
+    """``npz`` or ``onnx``: what the file at ``path`` holds, by its first bytes (a zip
+    archive is an ``.npz``; anything else is read as ONNX), whatever its suffix;
+    ``ValueError`` when there is no file."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as err:
+        raise ValueError(f"no policy file at {path} ({err.strerror or err})") from None
+    if not head:
+        raise ValueError(f"{path}: an empty file, not an exported policy")
+    return "npz" if head in ZIP_MAGIC else "onnx"
+
+
+def _onnx_session(path: Path) -> Any:
+    """An onnxruntime session of ``path`` (one thread); ``ValueError`` in one line when
+    onnxruntime is missing or cannot read the file as a model taking ``obs`` and giving
+    ``action``."""
+    try:
+        import onnxruntime
+    except ImportError:
+        raise ValueError(
+            "an .onnx policy needs onnxruntime: pip install 'jaxenvs[export]'"
+        ) from None
+    options = onnxruntime.SessionOptions()
+    options.intra_op_num_threads = options.inter_op_num_threads = 1
+    try:
+        session = onnxruntime.InferenceSession(
+            str(path), options, providers=["CPUExecutionProvider"]
+        )
+    except Exception as err:  # noqa: BLE001 (onnxruntime's errors share no base class)
+        first = (str(err).strip().splitlines() or [""])[0][:160]
+        raise ValueError(
+            f"{path}: not a readable ONNX model or .npz ({type(err).__name__}: {first})"
+        ) from None
+    if [i.name for i in session.get_inputs()] != ["obs"] or "action" not in [
+        o.name for o in session.get_outputs()
+    ]:
+        raise ValueError(f"{path}: not an exported jaxenvs policy (no obs -> action graph)")
+    return session
+
+
 class HostPolicy:
-    """An exported policy (``.onnx`` through onnxruntime, or ``.npz`` through the numpy
-    runtime): ``act(obs) -> (action, finite)`` where ``finite`` says the network's output
-    (the logits of a discrete policy from an ``.npz``) was finite."""
+    """An exported policy, read by its content (:func:`policy_format`): ONNX through
+    onnxruntime, or an ``.npz`` through the numpy runtime. ``act(obs) -> (action,
+    finite)`` where ``finite`` says the network's output (the logits of a discrete policy
+    from an ``.npz``) was finite. A file that is neither, or lacks the metadata the loop
+    needs (``env_id``, a finite positive ``control_dt``), is a one-line ``ValueError``."""
 
     def __init__(self, path: str | Path) -> None:
         path = Path(path)
         self.path = path
-        if path.suffix == ".onnx":
-            try:
-                import onnxruntime
-            except ImportError:
-                raise ValueError(
-                    "an .onnx policy needs onnxruntime: pip install 'jaxenvs[export]'"
-                ) from None
-            if not path.is_file():
-                raise ValueError(f"no policy file at {path}")
-            options = onnxruntime.SessionOptions()
-            options.intra_op_num_threads = options.inter_op_num_threads = 1
-            self._session = onnxruntime.InferenceSession(
-                str(path), options, providers=["CPUExecutionProvider"]
-            )
+        self.format = policy_format(path)
+        self._npz: Any = None
+        if self.format == "onnx":
+            self._session = _onnx_session(path)
             self.metadata = dict(self._session.get_modelmeta().custom_metadata_map)
-            self._npz = None
-        elif path.suffix == ".npz":
+        else:
             from jaxenvs.deploy.runtime import NumpyPolicy
 
             self._npz = NumpyPolicy.load(path)
             self.metadata = dict(self._npz.metadata)
-        else:
-            raise ValueError(f"{path}: a policy is an exported .onnx or .npz file")
         if "env_id" not in self.metadata or "control_dt" not in self.metadata:
             raise ValueError(f"{path}: not an exported jaxenvs policy (no env_id/control_dt)")
+        try:
+            dt = float(self.metadata["control_dt"])
+        except ValueError:
+            dt = math.nan
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"{path}: corrupt policy metadata (control_dt)")
         self.discrete = self.metadata.get("discrete") == "1"
-        self.format = path.suffix[1:]
 
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, bool]:
         """The greedy action of one observation, and whether the output was finite."""
@@ -88,81 +131,6 @@ class HostPolicy:
             return np.clip(out, -1.0, 1.0).astype(np.float32), finite
         action = self._session.run(["action"], {"obs": x})[0][0]
         return action, bool(np.all(np.isfinite(action)))
-
-
-# ------------------------------------------------------------------------ the task input
-class CommandInput:
-    """The task's own input (a target, a joystick command) from a script or the keyboard.
-
-    A script file holds lines ``T v1 v2 ...``: from ``T`` seconds after the start the
-    input is ``(v1, v2, ...)`` (``#`` starts a comment). ``-`` reads lines ``v1 v2 ...``
-    from standard input as they are typed; each holds until the next.
-    """
-
-    def __init__(self, source: str) -> None:
-        self._lock = threading.Lock()
-        self._value: np.ndarray | None = None
-        self._script: list[tuple[float, np.ndarray]] = []
-        if source == "-":
-            threading.Thread(target=self._read_stdin, daemon=True).start()
-            return
-        try:
-            lines = Path(source).read_text().splitlines()
-        except OSError as err:
-            raise ValueError(f"cannot read the command script {source}: {err.strerror}") from None
-        for n, line in enumerate(lines, 1):
-            fields = line.split("#")[0].split()
-            if fields:
-                try:
-                    t, *values = (float(f) for f in fields)
-                except ValueError:
-                    raise ValueError(f"{source}:{n}: expected 'T v1 v2 ...' numbers") from None
-                self._script.append((t, np.asarray(values, np.float32)))
-        if not self._script:
-            raise ValueError(f"{source}: the command script holds no command")
-
-    size: int | None = None  # the task input's size, once :meth:`expect` said it
-
-    def expect(self, shape: tuple[int, ...], env_id: str) -> None:
-        """Check the script's values against the task input's ``shape`` (one line naming
-        the problem); typed lines of another size are ignored with a message."""
-        if len(shape) != 1:
-            raise ValueError(f"{env_id} takes no task input (--command)")
-        self.size = shape[0]
-        if self._script and self._script[0][0] > 0:
-            raise ValueError(f"the command script must start at 0 s, not {self._script[0][0]:g}")
-        for t, value in self._script:
-            if value.shape != shape:
-                raise ValueError(
-                    f"the command at {t:g} s has {value.size} values, {env_id} takes {shape[0]}"
-                )
-
-    def _read_stdin(self) -> None:
-        for line in sys.stdin:
-            try:
-                value = np.asarray([float(f) for f in line.split()], np.float32)
-            except ValueError:
-                print(f"ignored command {line.strip()!r}: expected numbers", file=sys.stderr)
-                continue
-            if self.size is not None and value.size != self.size:
-                print(
-                    f"ignored command {line.strip()!r}: expected {self.size} numbers",
-                    file=sys.stderr,
-                )
-                continue
-            with self._lock:
-                self._value = value
-
-    def at(self, t: float) -> np.ndarray | None:
-        """The input ``t`` seconds after the start (``None`` before the first)."""
-        if not self._script:
-            with self._lock:
-                return self._value
-        current = None
-        for start, value in self._script:
-            if start <= t:
-                current = value
-        return current
 
 
 # ----------------------------------------------------------------------------- the loop
@@ -308,8 +276,11 @@ def _one_step(
     rec.lateness.append(late)
     rec.ages.append(sent - frame.received)
     # after the command is out: round trips, and the ground truth's reward and task state
+    # (a frame acknowledging a command sent after it arrived is no round trip)
     for seq in [s for s in st.pending if s <= frame.acked]:
-        rec.rtts.append(frame.received - st.pending.pop(seq))
+        if st.pending[seq] <= frame.received:
+            rec.rtts.append(frame.received - st.pending[seq])
+        del st.pending[seq]
     _account_truth(link, st, rec, log, in_force)
     if log is not None:
         if frame.seq != st.frame_seq:
@@ -394,10 +365,10 @@ def run(
     commands: CommandInput | None = None,
 ) -> Record:
     """Drive ``link`` (connected) for ``opts.seconds``; a :class:`Record` of the run.
-    Always holds the robot at the end; on a failure ``record.error`` names it (and the
-    robot was told to hold). A policy whose metadata disagrees with the host's task on a
-    deploy field raises ``ValueError`` before the robot is driven
-    (:func:`check_deploy_fields`)."""
+    Always holds the robot at the end; on any failure (an interrupt included)
+    ``record.error`` names it, and the robot was told to hold. The one exception raised is
+    the ``ValueError`` of a policy whose metadata disagrees with the host's task on a
+    deploy field, before the robot is driven (:func:`check_deploy_fields`)."""
     metadata = getattr(policy, "metadata", None)
     if metadata is not None:
         check_deploy_fields(host.env, metadata)
@@ -416,15 +387,20 @@ def run(
             behind = int((time.monotonic() - t0) / dt) - k  # ticks slept through
             k += max(1, behind)
             rec.misses += max(0, behind - 1)
-    except (DeployError, LinkError) as err:
+    except (DeployError, LinkError, LogError) as err:
         rec.error = str(err)
     except KeyboardInterrupt:
         rec.error = "interrupted"
+    except Exception as err:  # noqa: BLE001 (whatever fails, the robot is held and told why)
+        rec.error = f"unexpected {type(err).__name__}: {str(err)[:160]}".replace("\n", " ")
     finally:
         reason = rec.error or ("terminated" if rec.terminated else "done")
         link.hold(reason)
         if log is not None:
-            log.write("/deploy/event", {"event": "hold", "reason": reason})
+            try:
+                log.write("/deploy/event", {"event": "hold", "reason": reason})
+            except LogError as err:
+                rec.error = rec.error or str(err)
     return rec
 
 
@@ -486,7 +462,6 @@ def one_line(s: dict) -> str:
 
 
 __all__ = [
-    "CommandInput",
     "DeployError",
     "HostPolicy",
     "LoopOptions",
