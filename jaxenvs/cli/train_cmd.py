@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
+import signal
 import sys
 import time
 from pathlib import Path
@@ -19,6 +20,7 @@ RUN_FLAGS = {"seed": "seed", "num_seeds": "num_seeds", "eval_episodes": "eval_ep
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from jaxenvs.run import distributed
     from jaxenvs.run.run_config import ALGORITHMS
 
     parser.add_argument("env_id", nargs="?", help="env id (or env.id in the config file)")
@@ -50,6 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar or notices")
     engine_args.add(parser)
+    distributed.add_arguments(parser)
 
 
 def _enable_compile_cache(args: argparse.Namespace) -> None:
@@ -62,10 +65,15 @@ def _enable_compile_cache(args: argparse.Namespace) -> None:
     cache.enable()
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
     from jaxenvs.cli import UserError
-    from jaxenvs.run import loop, run_config
+    from jaxenvs.run import distributed, loop, run_config
 
+    distributed.initialize_from(args)  # before the first JAX operation
     checks.int_flag("--devices", args.devices, 1, 2**16)
     if args.resume:
         given = ("env_id", "algo", "config", "out", "physics", *AGENT_FLAGS, *RUN_FLAGS)
@@ -92,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         resolved = run_config.with_physics(resolved, args.physics)
         stamp = time.strftime("%Y%m%d-%H%M%S")
         out = Path(args.out or f"runs/{resolved.env_id}-{resolved.algo}-{stamp}")
+        out = distributed.process_out_dir(out)  # process k > 0 of several: its own
         if (out / run_config.CHECKPOINT_FILE).exists():
             raise UserError(f"{out} already holds a run; use --resume {out} or another --out")
         resume = False
@@ -100,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
             resolved, train=dataclasses.replace(resolved.train, video=False)
         )
     _enable_compile_cache(args)  # only once the command is known to be valid
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # SIGTERM stops it as Ctrl-C does
     try:
         summary = loop.train(resolved, out, resume=resume, quiet=args.quiet, devices=args.devices)
     except KeyboardInterrupt:
@@ -108,6 +118,8 @@ def run(args: argparse.Namespace) -> int:
             way_on = f"continue with: jaxenvs train --resume {out}"
             print(way_on if saved else "nothing was saved: start the run again", file=sys.stderr)
         raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     line = (
         f"{resolved.algo} on {resolved.env_id}: eval return {summary['eval_mean_return']:.1f} "
         f"+- {summary['eval_std_return']:.1f} ({summary['eval_episodes']} episodes), "

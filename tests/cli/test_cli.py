@@ -299,3 +299,43 @@ def test_other_commands_flags(capsys, tmp_path, argv, name):
     if argv[0] == "render":
         argv += ["--out", str(tmp_path / "v.mp4")]
     _flag_error(capsys, argv, name)
+
+
+def test_sigterm_stops_train_as_ctrl_c_does(tmp_path, capsys, monkeypatch):
+    """SIGTERM while a chunk runs: the results so far and the "interrupted" record are
+    written, the notice gives the --resume command, exit 130, and the resume finishes (it
+    used to end the process at once, with no summary)."""
+    import signal
+
+    from jaxenvs.run import loop as run_loop
+
+    real, calls = run_loop._run_chunk, {"n": 0}
+
+    def terminated_during_second(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            signal.raise_signal(signal.SIGTERM)
+        return real(*args, **kwargs)
+
+    class Unhandled(Exception):
+        """What a SIGTERM nobody handles does here (the process would end at once)."""
+
+    def unhandled(signum, frame):
+        raise Unhandled
+
+    monkeypatch.setattr(run_loop, "_run_chunk", terminated_during_second)
+    previous = signal.signal(signal.SIGTERM, unhandled)
+    out = tmp_path / "run"
+    argv = ["train", "--config", _chain_file(tmp_path, "qlearning"), "--out", str(out)]
+    try:
+        code = cli.main([*argv, "--quiet", "--no-compile-cache"])
+        assert signal.getsignal(signal.SIGTERM) is unhandled  # restored
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert code == 130
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["interrupted"] and summary["chunks"] == 1
+    assert f"continue with: jaxenvs train --resume {out}" in capsys.readouterr().err
+    monkeypatch.setattr(run_loop, "_run_chunk", real)
+    assert cli.main(["train", "--resume", str(out), "--quiet", "--no-compile-cache"]) == 0
+    assert not json.loads((out / "summary.json").read_text())["interrupted"]
