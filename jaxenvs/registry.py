@@ -23,7 +23,7 @@ from typing import Any
 
 from jaxenvs.config import ConfigError, apply_overrides
 from jaxenvs.core import BatchedEnv, Env, TaskConfig
-from jaxenvs.physics import with_engine
+from jaxenvs.core.plan import plan
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,15 +174,24 @@ def make(
         (:func:`jaxenvs.physics.resolve_engine`).
     """
     factory = spec(env_id).factory
-    batch = num_envs if isinstance(num_envs, int) else None
-    env = factory(with_engine(factory, make_config(env_id, overrides), batch))
-    if num_envs is None:
-        if randomize or devices is not None:
-            raise ConfigError("randomize and devices need num_envs (a batched env)")
-        return env
-    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+    if num_envs is None and (randomize or devices is not None):
+        raise ConfigError("randomize and devices need num_envs (a batched env)")
+    if num_envs is not None and (
+        isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1
+    ):
         raise ConfigError(f"num_envs must be a positive integer, got {num_envs!r}")
-    return BatchedEnv(env, num_envs, randomize=randomize, devices=devices)
+    config = make_config(env_id, overrides)
+    if not isinstance(factory, type):  # a factory function: the env resolves its engine
+        env = factory(config)
+        return env if num_envs is None else BatchedEnv(env, num_envs, randomize, devices)
+    # the plan, once: engine, devices and reset mode (jaxenvs.core.plan)
+    the_plan = plan(factory, getattr(config, "physics", "auto"), num_envs, devices)
+    if getattr(config, "physics", the_plan.physics) != the_plan.physics:
+        config = dataclasses.replace(config, physics=the_plan.physics)
+    env = factory(config)
+    if num_envs is None:
+        return env
+    return BatchedEnv(env, num_envs, randomize=randomize, plan=the_plan)
 
 
 def _builtin() -> None:
@@ -239,6 +248,12 @@ def _builtin() -> None:
         hexapod.HexapodJoystick,
         hexapod.JoystickConfig(),
         "6 legs x 3 servos follow a velocity command from onboard sensors, 1000 steps",
+    )
+    register(
+        "HexapodJoystickRough-v0",
+        hexapod.HexapodJoystickRough,
+        hexapod.JoystickRoughConfig(),
+        "the joystick on a terrain of levels x types, a per-env level curriculum, 400 steps",
     )
 
 

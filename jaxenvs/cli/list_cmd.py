@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from jaxenvs.physics.figures import figures_for
+
 HELP = "list registered env ids with observation and action sizes"
 
 
@@ -30,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
                 str(env.observation_size),
                 actions,
                 str(env.episode_length),
-                type(env).cpu_physics,
+                figures_for(type(env)).cpu_physics,
                 spec(env_id).description,
             )
         )

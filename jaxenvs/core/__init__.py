@@ -55,14 +55,17 @@ from jaxenvs.core.env import (
     check_key,
     check_state,
 )
+from jaxenvs.core.plan import Plan, plan
 
 __all__ = [
     "STANDARD_INFO_KEYS",
     "BatchedEnv",
     "Env",
     "NoExtras",
+    "Plan",
     "State",
     "TaskConfig",
     "check_key",
     "check_state",
+    "plan",
 ]

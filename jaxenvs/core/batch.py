@@ -3,6 +3,7 @@ vmapped function, with fresh random auto-resets."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any
@@ -12,6 +13,8 @@ import jax.numpy as jnp
 
 from jaxenvs.core import placement
 from jaxenvs.core.env import Env, Params, State, check_key, check_state
+from jaxenvs.core.plan import Plan
+from jaxenvs.core.plan import plan as make_plan
 
 
 class BatchedEnv:
@@ -27,28 +30,24 @@ class BatchedEnv:
     ``env.reset(k, params)``'s for its key ``k``, the params drawn from
     ``jax.random.split(k, 4)[3]`` (with JAX's default partitionable threefry).
 
-    **What a step resets.** On a CPU, from :data:`COMPACT_RESET_FROM` envs a device of the
-    batch's own spread (all envs for a batch on one device, however its caller places
-    it), a step computes fresh starts for the finished envs alone, gathered in chunks of
-    :func:`reset_slots` places a device (an eighth of its envs), one chunk a loop
-    iteration, as many iterations as the device with the most finished envs needs: the
-    program holds one copy of the reset's code. A C batch spread over several CPU devices
-    steps as one program per device (:func:`steps_per_device`), so there each device
-    loops only as often as its own finished envs need: no step waits on a decision
-    taken across the devices. Below :data:`COMPACT_RESET_FROM`, on accelerators, and with
-    ``compact_reset=False``, a step computes them for the whole batch when any env
-    finished. Each env's fresh start depends on its own key (and params) only, so the
-    states are the same bit for bit every way. Pass ``compact_reset=False`` for a batch
-    stepped under ``vmap`` (the training runner vmaps its agents over seeds): there the
-    loop's trip count is batched, and ``vmap`` runs every env through the most iterations
-    any of them needs.
+    **The plan.** How the batch runs is decided once, when it is made
+    (:func:`jaxenvs.core.plan.plan`, kept as :attr:`plan`): the devices its env axis is
+    split over (:func:`jaxenvs.core.placement.batch_devices`; ``devices=1`` keeps it on
+    one) and how its auto-reset computes fresh starts. Over several devices a step runs
+    as a program per device (:func:`jaxenvs.core.placement.per_device`) on every backend:
+    each device steps its slice and resets its own finished envs, with no cross-device
+    reduction. Within a device the reset is ``"compact"`` (on a CPU from 64 envs a device:
+    fresh starts for the finished envs alone, in chunks of an eighth of the device's envs,
+    a loop as long as the device's own count needs) or ``"whole"`` (fresh starts of every
+    env of the device when any finished). Pass ``compact_reset=False`` for a batch stepped
+    under ``vmap`` (the trainers vmap their seeds): there a data-dependent loop would run
+    every env through the most iterations any of them needs. Each env's fresh start
+    depends on its own key, params and carry only, so the states are the same bit for bit
+    every way.
 
-    **Devices.** The batch is spread over the local devices that
-    :func:`jaxenvs.core.placement.batch_devices` picks (``devices=1`` keeps it on one):
-    ``reset`` and ``step`` keep every state leaf's env axis split over a 1-D mesh
-    (:func:`jaxenvs.core.placement.spread`, or :func:`~jaxenvs.core.placement.per_device`
-    for a C batch's step), so each device steps its slice of envs. Every
-    env's arithmetic is the same as on one device, so trajectories are bit-identical.
+    **The carry.** A task's per-env carry (``State.carry``) survives every auto-reset:
+    a finished env's carry is updated from its finished episode (the task's
+    ``_carry_update``) before its fresh start, which reads it.
     """
 
     def __init__(
@@ -58,19 +57,20 @@ class BatchedEnv:
         randomize: bool = False,
         devices: int | None = None,
         compact_reset: bool = True,
+        plan: Plan | None = None,
     ) -> None:
         if num_envs < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.env = env
         self.num_envs = int(num_envs)
         self.randomize = bool(randomize)
-        #: whether a step may reset only its finished envs (see "What a step resets")
-        self.compact_reset = bool(compact_reset)
-        n = placement.batch_devices(
-            self.num_envs, devices, getattr(env, "physics", "mjx"), env.c_envs_per_device
-        )
+        if plan is None:
+            physics = getattr(env, "physics", "mjx")
+            plan = make_plan(type(env), physics, self.num_envs, devices, vmapped=not compact_reset)
+        #: how the batch runs: devices and reset mode (see "The plan")
+        self.plan = plan
         #: the mesh the batch is spread over; ``None`` on one device
-        self.mesh = placement.local_mesh(n)
+        self.mesh = plan.mesh
 
     @property
     def devices(self) -> int:
@@ -83,7 +83,7 @@ class BatchedEnv:
         if self.mesh is None:
             return self
         return BatchedEnv(
-            self.env, self.num_envs, self.randomize, devices=1, compact_reset=self.compact_reset
+            self.env, self.num_envs, self.randomize, plan=dataclasses.replace(self.plan, devices=1)
         )
 
     def __getattr__(self, name: str) -> Any:
@@ -162,26 +162,21 @@ class BatchedEnv:
                 f"batched {type(self.env).__name__}: expected actions of shape {expected}, "
                 f"got {action.shape}"
             )
-        if self.compact_reset and steps_per_device(
-            self.devices, jax.default_backend(), self.env.physics
-        ):
-            assert self.mesh is not None
-            step = functools.partial(self._step_batch, rows=1)
-            return placement.per_device(self.mesh, step, state, action, params)
-        step = functools.partial(self._step_batch, rows=self.devices)
-        return placement.spread(self.mesh, step, state, action, params)
+        if self.mesh is None:
+            return self._step_batch(state, action, params)
+        return placement.per_device(self.mesh, self._step_batch, state, action, params)
 
-    def _step_batch(self, state: State, action: jax.Array, params: Params, rows: int) -> State:
-        """The step of ``state``'s envs, as ``rows`` equal rows (devices) of envs that
-        each reset their own finished envs, in a loop as long as the row that needs most."""
+    def _step_batch(self, state: State, action: jax.Array, params: Params) -> State:
+        """The step of ``state``'s envs (one device's), each finished env reset as the
+        plan says."""
         if state.params is not None:
             nxt = jax.vmap(self.env.step)(state, action, state.params)
         else:
             nxt = jax.vmap(self.env.step, in_axes=(0, 0, None))(state, action, params)
         done = nxt.done
         nxt = nxt.replace(carry=self.next_carry(nxt, done, params))
-        per_row = done.shape[0] // rows
-        slots = reset_slots(per_row, jax.default_backend()) if self.compact_reset else 0
+        per_device = done.shape[0]
+        slots = self.plan.reset_slots(per_device)
 
         def reset_all(nxt: State) -> State:
             fresh = self.fresh_starts(nxt.key, params, nxt.carry)
@@ -190,33 +185,24 @@ class BatchedEnv:
 
         if slots == 0:
             return jax.lax.cond(jnp.any(done), reset_all, lambda s: s, nxt)
-        # each device row's finished envs, in order, in chunks of `slots` places (the
-        # places past a row's last finished env point past the row's end and are dropped
-        # when scattered back); a chunk a loop iteration, one copy of the fresh starts
-        chunks = -(-per_row // slots)
-        by_row = _rows(done, rows)
-        index = jax.vmap(lambda d: jnp.nonzero(d, size=chunks * slots, fill_value=per_row)[0])(
-            by_row
-        )
-        keys = _rows(nxt.key, rows)
-        carries = jax.tree.map(lambda c: _rows(c, rows), nxt.carry)
-        needed = -(-jnp.max(by_row.sum(axis=1)) // slots)
+        # the device's finished envs, in order, in chunks of `slots` places (the places
+        # past the last finished env point past the end and are dropped when scattered
+        # back); a chunk a loop iteration, one copy of the fresh starts
+        chunks = -(-per_device // slots)
+        index = jnp.nonzero(done, size=chunks * slots, fill_value=per_device)[0]
+        needed = -(-done.sum() // slots)
+        keys, carries = nxt.key, nxt.carry
 
         def reset_chunk(c: jax.Array, state: State) -> State:
-            where = jax.lax.dynamic_slice_in_dim(index, c * slots, slots, axis=1)
+            where = jax.lax.dynamic_slice_in_dim(index, c * slots, slots)
 
             def pick(x: jax.Array) -> jax.Array:
-                got = jax.vmap(lambda k, i: k[jnp.minimum(i, per_row - 1)])(x, where)
-                return got.reshape(rows * slots, *got.shape[2:])
+                return x[jnp.minimum(where, per_device - 1)]
 
             fresh = self.fresh_starts(pick(keys), params, jax.tree.map(pick, carries))
 
             def put(new: jax.Array, old: jax.Array) -> jax.Array:
-                new = new.reshape(rows, slots, *new.shape[1:])
-                out = jax.vmap(lambda o, i, v: o.at[i].set(v, mode="drop"))(
-                    _rows(old, rows), where, new
-                )
-                return out.reshape(old.shape)
+                return old.at[where].set(new, mode="drop")
 
             return merge_starts(self.env, state, fresh, put)
 
@@ -254,32 +240,6 @@ def merge_starts(
     )
 
 
-#: a device's share of the batch from which a step resets only its finished envs
-COMPACT_RESET_FROM = 64
-
-
-def reset_slots(per_device: int, platform: str = "cpu") -> int:
-    """Fresh starts a step computes per device when few envs finished: on a CPU an eighth
-    of the device's envs, or 0 for "reset the whole batch whenever any env finished":
-    below :data:`COMPACT_RESET_FROM` envs a device, and on accelerators, where it was
-    measured only inside training, which computed every case under the seeds' ``vmap``
-    (benchmarks/NOTES.md, "A compact auto-reset, and the walker's C batch on one
-    device")."""
-    if platform != "cpu" or per_device < COMPACT_RESET_FROM:
-        return 0
-    return per_device // 8
-
-
-def steps_per_device(devices: int, platform: str, physics: str) -> bool:
-    """Whether a step runs as one program per device (:func:`jaxenvs.core.placement.per_device`),
-    each device resetting its own finished envs: for a C batch spread over several CPU
-    devices. Partitioned as one program (:func:`jaxenvs.core.placement.spread`), the
-    compact reset's loop is as long as the device with the most finished envs needs, a
-    cross-device reduction at every step that made every device wait for the slowest
-    (benchmarks/NOTES.md, "A C step per device")."""
-    return devices > 1 and platform == "cpu" and physics == "c"
-
-
 def _zero_counters(state: State, done: jax.Array) -> State:
     """``state`` with the episode counters of the ``done`` envs zeroed."""
     info = dict(state.info)
@@ -290,8 +250,3 @@ def _zero_counters(state: State, done: jax.Array) -> State:
 
 def _where(done: jax.Array, new: jax.Array, old: jax.Array) -> jax.Array:
     return jnp.where(done.reshape(done.shape + (1,) * (old.ndim - 1)), new, old)
-
-
-def _rows(x: jax.Array, rows: int) -> jax.Array:
-    """``x`` with its env axis split into ``rows`` rows (one per device)."""
-    return x.reshape(rows, x.shape[0] // rows, *x.shape[1:])

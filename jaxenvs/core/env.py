@@ -14,8 +14,7 @@ import numpy as np
 from flax import struct
 
 from jaxenvs.config import require
-from jaxenvs.core.placement import C_ENVS_PER_DEVICE
-from jaxenvs.physics import PHYSICS_CHOICES, resolve_engine
+from jaxenvs.physics import PHYSICS_CHOICES, EngineFigures, resolve_engine
 from jaxenvs.physics.sim import Sim
 
 if TYPE_CHECKING:
@@ -158,23 +157,9 @@ class Env(abc.ABC, Generic[ConfigT]):
     #: scans the same way.
     scan_unroll: int = 1
 
-    #: the engine ``physics="auto"`` picks on a CPU. ``"mjx"`` unless a task's engine
-    #: parity and speed were measured (our tasks: ``tests/physics/test_cengine.py``,
-    #: benchmarks/RESULTS.md).
-    cpu_physics: str = "mjx"
-
-    #: on a CPU, ``physics="auto"`` picks MJX for batches of at least this many envs
-    #: (:func:`jaxenvs.physics.resolve_engine`); ``None``: ``cpu_physics`` at every size.
-    cpu_mjx_from: int | None = None
-
-    #: under ``physics="c"``, the fewest envs a host device steps when a batch spreads over
-    #: the CPU's devices by default (:func:`jaxenvs.core.placement.batch_devices`); ``None``:
-    #: a C batch stays on one device, stepped by every engine thread. Splitting pays where
-    #: the task's own JAX work (observation, reward, auto-reset) is a large part of a step,
-    #: which then runs on every device; a step that is mostly contact physics scales better
-    #: on one device's engine pool (benchmarks/NOTES.md, "A compact auto-reset, and the walker's C
-    #: batch on one device").
-    c_envs_per_device: int | None = C_ENVS_PER_DEVICE
+    #: how the task is best stepped on a CPU, for a task outside the built-in table
+    #: (:mod:`jaxenvs.physics.figures`); ``None``: the table's row, or MJX everywhere
+    engine_figures: EngineFigures | None = None
 
     #: the derived ``mjx.Data`` fields the task reads (``sensordata``, ``actuator_force``,
     #: ``site_xpos``, ...; the state ``qpos``, ``qvel``, ... and the inputs such as

@@ -38,6 +38,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxenvs.physics.figures import C_ENVS_PER_DEVICE
+
 #: name of the mesh axis an env batch is split over (see :mod:`jaxenvs.core.sharding`).
 ENV_AXIS = "envs"
 
@@ -127,13 +129,6 @@ def check_divisible(num_envs: int, devices: int, hint: str = "") -> None:
         )
 
 
-#: the fewest envs a device steps in a C batch spread by default (a task's
-#: ``c_envs_per_device`` unless it says otherwise): on a 16-core host (8 devices) a C batch
-#: of 16 or 256 envs split eight ways stepped 2.2-2.3x slower than the same batch on one
-#: device (benchmarks/NOTES.md, "The C engine over the host devices")
-C_ENVS_PER_DEVICE = 512
-
-
 def batch_devices(
     num_envs: int,
     devices: int | None,
@@ -145,7 +140,7 @@ def batch_devices(
     ``devices=None`` (the default) means all local devices of JAX's default backend (CPU
     host devices or GPUs), or as many of them as ``num_envs`` divides over evenly, with a
     warning when that is fewer. Under the C engine (``physics="c"``) each device gets at
-    least ``c_envs_per_device`` envs (the task's; default :data:`C_ENVS_PER_DEVICE`): a
+    least ``c_envs_per_device`` envs (the task's figure, :mod:`jaxenvs.physics.figures`): a
     smaller batch spreads over fewer devices, one below that size; ``None`` keeps every
     C batch on one device, stepped by all the engine's threads. An explicit count must
     divide ``num_envs`` and exist, or ``ValueError`` names the nearest valid sizes.

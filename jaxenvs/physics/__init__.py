@@ -7,9 +7,9 @@ runner with its ``num_envs`` (:func:`jaxenvs.run.run_config.engine_resolved`), a
 :class:`jaxenvs.core.Env` itself for a config built without either; a built env's config
 holds the resolved engine, so resolving it again returns it unchanged.
 
-The rule's inputs are two class attributes of the task, both measured (the evidence:
-benchmarks/RESULTS.md, section "physics='auto' on a CPU", from
-``benchmarks/engines_sweep.sh``):
+The rule's inputs are two of the task's engine figures (one table,
+:mod:`jaxenvs.physics.figures`), both measured (the evidence: benchmarks/RESULTS.md,
+section "physics='auto' on a CPU", from ``benchmarks/engines_sweep.sh``):
 
 * ``cpu_physics``: the engine a CPU steps the task with (``"mjx"`` unless measured);
 * ``cpu_mjx_from``: the envs per CPU device from which MJX's steady-state throughput
@@ -29,6 +29,8 @@ from typing import Any, TypeVar
 
 import jax
 
+from jaxenvs.physics.figures import EngineFigures, figures_for
+
 #: values of ``TaskConfig.physics``
 PHYSICS_CHOICES = ("auto", "mjx", "c")
 
@@ -47,8 +49,8 @@ def resolve_engine(
     ``backend`` (default: JAX's default backend) with ``cpu_devices`` CPU devices
     (default: the CPU backend's; a record of another machine passes its own).
 
-    ``"auto"`` is MJX on an accelerator; on a CPU it is ``task.cpu_physics``, or MJX for
-    batches of at least ``task.cpu_mjx_from`` envs per CPU device (``cpu_mjx_from x
+    ``"auto"`` is MJX on an accelerator; on a CPU it is the task's ``cpu_physics``, or MJX
+    for batches of at least its ``cpu_mjx_from`` envs per CPU device (``cpu_mjx_from x
     cpu_devices``). ``"mjx"`` and ``"c"`` mean themselves,
     except that ``"c"`` on an accelerator raises ``ValueError`` (MuJoCo's C engine runs on
     the CPU only); any other value raises ``ValueError``.
@@ -59,12 +61,13 @@ def resolve_engine(
     if requested == "auto":
         if backend != "cpu":
             return "mjx"
-        per_device = getattr(task, "cpu_mjx_from", None)
+        figures = figures_for(task)
+        per_device = figures.cpu_mjx_from
         if per_device is not None and num_envs is not None:
             devices = jax.local_device_count("cpu") if cpu_devices is None else cpu_devices
             if num_envs >= per_device * devices:
                 return "mjx"
-        return str(getattr(task, "cpu_physics", "mjx"))
+        return figures.cpu_physics
     if requested == "c" and backend != "cpu":
         raise ValueError(
             f"physics='c' steps MuJoCo's C engine on the CPU, but JAX's default backend is "
@@ -87,3 +90,6 @@ def with_engine(factory: Any, config: ConfigT, num_envs: int | None = None) -> C
     if engine == requested:
         return config
     return dataclasses.replace(config, physics=engine)  # type: ignore[type-var]
+
+
+__all__ = ["PHYSICS_CHOICES", "EngineFigures", "figures_for", "resolve_engine", "with_engine"]

@@ -18,6 +18,7 @@ import jax
 from jaxenvs.agents.base import Trainer
 from jaxenvs.core import Env
 from jaxenvs.core.xla import jit
+from jaxenvs.physics.figures import figures_for
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.placement import mesh_programs, run_mesh
 from jaxenvs.run.run_config import ResolvedConfig, build, seed_keys
@@ -57,7 +58,9 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     (:func:`jaxenvs.run.placement.mesh_programs`).
     """
     env, trainer = build(resolved)
-    mesh = run_mesh(resolved.agent.num_envs, env.physics, devices, env.c_envs_per_device)
+    mesh = run_mesh(
+        resolved.agent.num_envs, env.physics, devices, figures_for(type(env)).c_envs_per_device
+    )
     init_fn: Any  # jitted: ``eval_shape`` and ``lower`` below
     chunk_fn: Any
     if mesh.size > 1:  # laid out over the mesh, the evaluator too (jaxenvs.run.placement)

@@ -91,15 +91,15 @@ class Marker:
     half_height: float = 0.005
     rgba: tuple[float, float, float, float] = (0.9, 0.2, 0.2, 0.6)
 
-    def add_to(self, spec: mujoco.MjSpec) -> None:
-        body = spec.worldbody.add_body(name=self.name, mocap=True, pos=list(self.pos))
-        body.add_geom(
-            name=self.name,
-            type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-            size=[self.radius, self.half_height, 0],
-            rgba=list(self.rgba),
-            contype=0,
-            conaffinity=0,
+    def mjcf(self) -> str:
+        """The marker as an MJCF ``<body>`` element (its geom takes the robot file's
+        default class, as every geom there: it collides with nothing)."""
+        x, y, z = self.pos
+        r, g, b, a = self.rgba
+        return (
+            f'<body name="{self.name}" mocap="true" pos="{x} {y} {z}">'
+            f'<geom name="{self.name}" type="cylinder" size="{self.radius} {self.half_height}"'
+            f' rgba="{r} {g} {b} {a}"/></body>'
         )
 
 
@@ -133,13 +133,24 @@ class Scene:
         return self.name
 
     def spec(self) -> mujoco.MjSpec:
-        """A fresh :class:`mujoco.MjSpec` of the scene (not compiled)."""
-        spec = mujoco.MjSpec.from_file(str(self.robot))
+        """A fresh :class:`mujoco.MjSpec` of the scene (not compiled).
+
+        The markers come first among the world's bodies, before the robot's (as they stood
+        in the robot's MJCF before the scene was split from it: a randomised body's draw
+        is indexed by body, so the order keeps those draws); the ground's geoms are the
+        world body's own, first among the geoms."""
+        robot = Path(self.robot)
+        text = robot.read_text()
+        if self.markers:
+            if text.count("<worldbody>") != 1:
+                raise ValueError(f"{robot}: expected one <worldbody> element")
+            bodies = "".join(marker.mjcf() for marker in self.markers)
+            text = text.replace("<worldbody>", "<worldbody>" + bodies, 1)
+        spec = mujoco.MjSpec.from_string(text)
+        spec.meshdir = str(robot.parent / spec.meshdir) if spec.meshdir else str(robot.parent)
         if self.light:
             spec.worldbody.add_light(name="top", pos=[0, 0, 4], dir=[0, 0, -1])
         self.ground.add_to(spec)
-        for marker in self.markers:
-            marker.add_to(spec)
         slide, torsion, roll = self.ground.friction
         for geom in self.contacts:
             spec.add_pair(

@@ -69,7 +69,6 @@ class _CartpoleTask(RobotTask):
     #: physics="auto" on a CPU: C at every batch size (with the engine stepping on XLA's
     #: thread pool, C led MJX at 16 to 16,384 envs on 2 and on 16 cores;
     #: benchmarks/RESULTS.md, "physics='auto' on a CPU")
-    cpu_physics = "c"
     #: every reading comes from qpos/qvel: the C engine writes no derived field
     derived_fields: tuple[str, ...] | None = ()
     robot: Cartpole

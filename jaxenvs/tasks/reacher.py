@@ -127,7 +127,6 @@ class Reacher(RobotTask, Env[ReacherConfig]):
     #: physics="auto" on a CPU: C at every size (since the C engine writes back only the
     #: declared derived fields it was at least MJX's throughput at 1-16,384 envs on 2 and
     #: 16 cores; benchmarks/RESULTS.md, "physics='auto' on a CPU")
-    cpu_physics = "c"
     #: every reading comes from qpos/qvel (the target is mocap_pos, an input)
     derived_fields: tuple[str, ...] | None = ()
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -112,21 +114,21 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(
     (compacted into chunks of an eighth of the batch, one loop iteration each): the states
     are those of resetting the whole batch, bit for bit, with one chunk and with several."""
     from jaxenvs.actions import random_actions
-    from jaxenvs.core import batch
+    from jaxenvs.core import BatchedEnv, plan
+    from jaxenvs.tasks.cartpole import CartPole
 
     n, steps = 128, 150
-    assert batch.reset_slots(n) == 16 and batch.reset_slots(63) == 0
-    assert batch.reset_slots(n, "gpu") == 0
-    # a C batch over several CPU devices steps as a program per device
-    assert batch.steps_per_device(2, "cpu", "c")
-    assert not any(
-        batch.steps_per_device(*case)
-        for case in ((1, "cpu", "c"), (2, "cpu", "mjx"), (2, "gpu", "c"))
-    )
+    # the plan: compact on a CPU from 64 envs a device, outside a vmap; whole elsewhere
+    assert plan(CartPole, "c", n, 1, backend="cpu").reset == "compact"
+    assert plan(CartPole, "c", n, 1, backend="cpu").reset_slots(n) == 16
+    assert plan(CartPole, "c", 63, 1, backend="cpu").reset == "whole"
+    assert plan(CartPole, "c", n, 1, backend="cpu", vmapped=True).reset == "whole"
+    assert plan(CartPole, "mjx", n, 1, backend="gpu").reset == "whole"
 
-    def run(slots):
-        monkeypatch.setattr(batch, "reset_slots", slots)
-        benv = jaxenvs.make("CartPole-v0", num_envs=n, physics=physics, randomize=randomize)
+    def run(mode):
+        made = jaxenvs.make("CartPole-v0", num_envs=n, physics=physics, randomize=randomize)
+        the_plan = dataclasses.replace(made.plan, devices=1, reset=mode)
+        benv = BatchedEnv(made.env, n, randomize=randomize, plan=the_plan)
 
         def body(s, xs):
             k, i = xs
@@ -142,8 +144,8 @@ def test_compact_auto_reset_equals_resetting_the_whole_batch(
 
         return jax.jit(rollout)(jax.random.PRNGKey(4) if raw_key else jax.random.key(4))
 
-    compact, counts = run(batch.reset_slots)
-    whole, _ = run(lambda per_device, platform: 0)
+    compact, counts = run("compact")
+    whole, _ = run("whole")
     counts = np.asarray(counts)
     assert ((counts > 0) & (counts <= 16)).sum() > 20  # the compact path ran
     assert (counts > 16).any()  # and several chunks (the first wave of falls)

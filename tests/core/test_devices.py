@@ -69,26 +69,27 @@ _SCRIPT = textwrap.dedent(
     res["c_devices"] = jaxenvs.make("CartPole-v0", num_envs=8, physics="c").devices
     res["c_devices_big"] = jaxenvs.make("CartPole-v0", num_envs=2048, physics="c").devices
     res["c_devices_mid"] = jaxenvs.make("CartPole-v0", num_envs=1024, physics="c").devices
-    # a C batch over 4 devices steps as a program per device, each resetting its own
-    # finished envs (the default); one partitioned program with the compact auto-reset
-    # (64 envs each, 8 places) and with the whole one give the same
-    from jaxenvs.core import batch as _batch
-    compact, per_device = _batch.reset_slots, _batch.steps_per_device
-    never = lambda *args: False
-    whole = lambda n, platform="cpu": 0
-    for tag, slots, each in (("per_device", compact, per_device), ("compact", compact, never),
-                             ("whole", whole, never)):
-        _batch.reset_slots, _batch.steps_per_device = slots, each
-        benv = jaxenvs.make("CartPole-v0", num_envs=256, physics="c", devices=4)
-        res[f"reset_devices_{tag}"] = benv.devices
-        state, traj = rollout(benv, 60)
-        res[f"reset_shards_{tag}"] = len(state.obs.sharding.device_set)
-        a = random_actions(benv.env, jax.random.key(1), (benv.num_envs,))
-        hlo = jax.jit(benv.step).lower(state, a).compile().as_text()
-        res[f"reset_all_reduce_{tag}"] = "all-reduce" in hlo
-        for name, x in zip(("obs", "reward", "done"), traj):
-            arrays[f"reset_{tag}_{name}"] = x
-    _batch.reset_slots, _batch.steps_per_device = compact, per_device
+    # a batch over 4 devices steps as a program per device on every engine, each device
+    # resetting its own finished envs (compact: 64 envs each, 8 places; or whole); the
+    # same states either way and as on one device, and no cross-device reduction a step
+    import dataclasses
+    from jaxenvs.core import BatchedEnv
+    for physics in ("c", "mjx"):
+        made = jaxenvs.make("CartPole-v0", num_envs=256, physics=physics, devices=4)
+        for mode in ("compact", "whole"):
+            tag = f"{physics}_{mode}"
+            benv = BatchedEnv(made.env, 256, plan=dataclasses.replace(made.plan, reset=mode))
+            res[f"reset_devices_{tag}"] = benv.devices
+            state, traj = rollout(benv, 60)
+            res[f"reset_shards_{tag}"] = len(state.obs.sharding.device_set)
+            a = random_actions(benv.env, jax.random.key(1), (benv.num_envs,))
+            hlo = jax.jit(benv.step).lower(state, a).compile().as_text()
+            res[f"reset_all_reduce_{tag}"] = "all-reduce" in hlo
+            for name, x in zip(("obs", "reward", "done"), traj):
+                arrays[f"reset_{tag}_{name}"] = x
+        one = BatchedEnv(made.env, 256, devices=1)
+        for name, x in zip(("obs", "reward", "done"), rollout(one, 60)[1]):
+            arrays[f"reset_{physics}_one_{name}"] = x
     # ... and a task with c_envs_per_device=None (the hexapod's) stays on one device
     res["c_walker_big"] = jaxenvs.make("HexapodWalk-v0", num_envs=2048, physics="c").devices
     # a program per device over a param given as a Python float (made an array, as jit does)
@@ -139,32 +140,44 @@ def test_batch_spreads_over_all_devices_by_default(four_devices):
 
 
 @pytest.mark.full  # the 4-device subprocess above
-def test_a_c_step_per_device_resets_like_one_partitioned_program(four_devices):
-    """A C batch over devices steps as a program per device (its default): no cross-device
-    reduction, and the states of the partitioned program's compact and whole resets."""
+def test_a_step_per_device_on_every_engine_resets_as_on_one_device(four_devices):
+    """A batch over devices steps as a program per device on every engine: no
+    cross-device reduction, the compact and the whole reset give the same states, and
+    those of the same batch on one device."""
     res, arrays = four_devices
-    tags = ("per_device", "compact", "whole")
-    assert [res[f"reset_devices_{t}"] for t in tags] == [4, 4, 4]
-    assert [res[f"reset_shards_{t}"] for t in tags] == [4, 4, 4]
-    assert not res["reset_all_reduce_per_device"]
+    tags = [f"{p}_{m}" for p in ("c", "mjx") for m in ("compact", "whole")]
+    assert [res[f"reset_devices_{t}"] for t in tags] == [4] * 4
+    assert [res[f"reset_shards_{t}"] for t in tags] == [4] * 4
+    assert not any(res[f"reset_all_reduce_{t}"] for t in tags)
     assert res["per_device_float"] == [[2.0 * k + 1 for k in range(8)], [8, 0], 4]
-    assert res["reset_all_reduce_compact"]  # the partitioned loop's trip count
-    assert arrays["reset_compact_done"].sum() > 60  # resets happened, on every step or so
-    for tag in ("per_device", "whole"):
-        for name in ("obs", "reward", "done"):
-            np.testing.assert_array_equal(
-                arrays[f"reset_compact_{name}"], arrays[f"reset_{tag}_{name}"]
-            )
+    for physics in ("c", "mjx"):
+        assert arrays[f"reset_{physics}_compact_done"].sum() > 60  # resets happened
+        for tag in ("whole", "one"):
+            for name in ("obs", "reward", "done"):
+                got, want = (
+                    arrays[f"reset_{physics}_compact_{name}"],
+                    arrays[f"reset_{physics}_{tag}_{name}"],
+                )
+                if physics == "mjx" and tag == "one":
+                    # MJX compiled for a device's 64 envs rounds a few last bits unlike the
+                    # same program for 256 (docs/devices.md); C steps each env alike
+                    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4)
+                else:
+                    np.testing.assert_array_equal(got, want)
 
 
 @pytest.mark.full  # a 4-device subprocess: the full tier
-def test_spread_rollouts_are_bit_identical_to_one_device(four_devices):
+def test_spread_rollouts_agree_with_one_device(four_devices):
+    """MJX over 4 and 2 devices (a program per device) against one: the same episodes, the
+    numbers to the last few bits (MJX compiled per device's slice rounds some last bits
+    unlike the whole batch's program; docs/devices.md); the C engine bit for bit."""
     _, arrays = four_devices
     assert arrays["done_1"].any()  # episodes ended: the auto-reset ran on every layout
     for name in ("obs", "reward", "done"):
-        np.testing.assert_array_equal(arrays[f"{name}_None"], arrays[f"{name}_1"])
-        np.testing.assert_array_equal(arrays[f"{name}_2"], arrays[f"{name}_1"])
-    np.testing.assert_array_equal(arrays["dr_4"], arrays["dr_1"])
+        for n in ("None", "2"):
+            np.testing.assert_allclose(arrays[f"{name}_{n}"], arrays[f"{name}_1"], atol=1e-4)
+    np.testing.assert_array_equal(arrays["done_None"], arrays["done_1"])
+    np.testing.assert_allclose(arrays["dr_4"], arrays["dr_1"], atol=1e-4)
     np.testing.assert_array_equal(arrays["c_2"], arrays["c_1"])
 
 

@@ -20,7 +20,7 @@ import pytest
 import jaxenvs
 from jaxenvs import machine
 from jaxenvs.actions import random_actions
-from jaxenvs.physics import cengine, resolve_engine
+from jaxenvs.physics import EngineFigures, cengine, resolve_engine
 from jaxenvs.testing import check_engine_parity
 
 BUILTIN = [
@@ -67,8 +67,7 @@ class _Crossing:
     """A task measured faster under MJX from 256 envs per CPU device (no built-in task
     has such a cross-over today: every one runs on C at every size on a CPU)."""
 
-    cpu_physics = "c"
-    cpu_mjx_from = 256
+    engine_figures = EngineFigures(cpu_physics="c", cpu_mjx_from=256)
 
 
 def test_engine_rule_by_backend_and_batch_size():
@@ -82,7 +81,7 @@ def test_engine_rule_by_backend_and_batch_size():
     class Unmeasured:  # neither attribute: MJX everywhere
         pass
 
-    cross = _Crossing.cpu_mjx_from * jax.local_device_count("cpu")
+    cross = _Crossing.engine_figures.cpu_mjx_from * jax.local_device_count("cpu")
     assert resolve_engine(_Crossing, "auto", backend="cpu") == "c"
     assert resolve_engine(_Crossing, "auto", cross - 1, backend="cpu") == "c"
     assert resolve_engine(_Crossing, "auto", cross, backend="cpu") == "mjx"
@@ -106,7 +105,7 @@ def test_engine_rule_counts_envs_per_cpu_device(monkeypatch):
     """The cross-over is per CPU device: with 8 host devices (a 16-core CPU) a task's
     batch goes to MJX from 8 x ``cpu_mjx_from`` envs, not from ``cpu_mjx_from``."""
     monkeypatch.setattr(jax, "local_device_count", lambda backend=None: 8)
-    per_device = _Crossing.cpu_mjx_from
+    per_device = _Crossing.engine_figures.cpu_mjx_from
     assert resolve_engine(_Crossing, "auto", per_device, backend="cpu") == "c"
     assert resolve_engine(_Crossing, "auto", 8 * per_device - 1, backend="cpu") == "c"
     assert resolve_engine(_Crossing, "auto", 8 * per_device, backend="cpu") == "mjx"

@@ -35,7 +35,9 @@ def test_a_task_names_its_scene_and_its_ground():
     walker = jaxenvs.make("HexapodWalk-v0")
     joystick = jaxenvs.make("HexapodJoystick-v0")
     assert walker.sim.mj_model.nmocap == 1  # the target
-    assert joystick.sim.mj_model.nmocap == 0  # no marker
+    assert joystick.sim.mj_model.nmocap == 1  # the same scene (its marker unused)
+    bodies = _names(walker.sim.mj_model, mujoco.mjtObj.mjOBJ_BODY, 3)
+    assert bodies == ["world", "target", "torso"]  # markers first: the draws by body stay
     slippery = Flat(friction=(0.3, 0.005, 0.0001))
     env = type(joystick)(joystick.config, ground=slippery)
     np.testing.assert_allclose(env.sim.mj_model.pair_friction[:, 0], 0.3)

@@ -25,6 +25,12 @@ if TYPE_CHECKING:
     from mujoco import mjx
 
 
+#: the walker's target: a red disc on the ground (a mocap body the task moves). Every
+#: hexapod scene holds it, first among the bodies (the joystick's stays where it is drawn):
+#: the randomised bodies' draws are indexed by body, so the shipped figures' draws stay
+TARGET = Marker("target", pos=(1.0, 0.0, 0.01), radius=0.05, half_height=0.005)
+
+
 class HexapodParams(struct.PyTreeNode):
     """Randomisable physics and task quantities.
 
@@ -130,8 +136,8 @@ ConfigT = TypeVar("ConfigT", bound=HexapodConfig)
 class HexapodTask(RobotTask, Env[ConfigT], Generic[ConfigT]):
     """The base of the tasks whose hexapod stands on its ground: the robot on the task's
     scene (:meth:`Hexapod.scene`: a flat floor unless the task names another ground, plus
-    its markers), the config's solver, a spawn at a random yaw, the fall rule and the
-    servos' energy.
+    its markers, :data:`TARGET` by default), the config's solver, a spawn at a random
+    yaw, the fall rule and the servos' energy.
 
     A subclass sets ``self._params`` after ``super().__init__`` and defines the task's
     observation, action and reward hooks.
@@ -146,16 +152,24 @@ class HexapodTask(RobotTask, Env[ConfigT], Generic[ConfigT]):
     robot: Hexapod
 
     def __init__(
-        self, config: ConfigT, ground: Ground | None = None, markers: tuple[Marker, ...] = ()
+        self,
+        config: ConfigT,
+        ground: Ground | None = None,
+        markers: tuple[Marker, ...] = (TARGET,),
     ) -> None:
         self.robot = Hexapod()
         sim = self.robot.make_sim(
             config.timestep,
             config.substeps,
-            edit=solver_edit(config.solver_iterations, config.ls_iterations),
+            edit=self.model_edit(config),
             scene=self.robot.scene(ground, markers),
         )
         super().__init__(config, sim)
+
+    def model_edit(self, config: ConfigT) -> Callable[[mujoco.MjModel], None]:
+        """The edit of the host model: the config's solver iterations (a task that sets
+        more of the contact model, such as its friction cone, extends it)."""
+        return solver_edit(config.solver_iterations, config.ls_iterations)
 
     def spawn(self, u: jax.Array) -> jax.Array:
         """The start's ``qpos`` from 19 uniforms in [0, 1): the body at ``init_height``

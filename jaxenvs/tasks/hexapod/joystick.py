@@ -240,8 +240,6 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s.
     """
 
-    cpu_physics = "c"
-    c_envs_per_device = None  # contact physics: one device's engine pool (NOTES)
     metric_keys = (
         "lin_error",
         "yaw_error",

@@ -68,8 +68,6 @@ class HexapodOneLeg(RobotTask, Env[OneLegConfig]):
       contacts or constraints.
     """
 
-    cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
-    c_envs_per_device = None  # contact physics: one device's engine pool (NOTES)
     #: every reading comes from qpos/qvel
     derived_fields: tuple[str, ...] | None = ()
     robot: HexapodLeg

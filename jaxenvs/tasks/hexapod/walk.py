@@ -17,9 +17,9 @@ from jaxenvs import randomize
 from jaxenvs.config import require
 from jaxenvs.randomize import Range
 from jaxenvs.robots.base import Readings, gravity_in_body, world_to_body
-from jaxenvs.scenes import Ground, Marker
+from jaxenvs.scenes import Ground
 from jaxenvs.tasks import rewards
-from jaxenvs.tasks.hexapod.base import HexapodConfig, HexapodParams, HexapodTask
+from jaxenvs.tasks.hexapod.base import TARGET, HexapodConfig, HexapodParams, HexapodTask
 
 if TYPE_CHECKING:
     from mujoco import mjx
@@ -38,10 +38,6 @@ OBS_NOISE = np.concatenate(
         np.full(3, 0.02),
     ]
 ).astype(np.float32)
-
-
-#: the walker's target: a red disc on the ground (a mocap body the task moves)
-TARGET = Marker("target")
 
 
 # -------------------------------------------------------------------------- HexapodWalk-v0
@@ -134,8 +130,6 @@ class HexapodWalk(HexapodTask[WalkConfig]):
     * Timing: 0.05 s per control step as 5 Euler substeps of 0.01 s.
     """
 
-    cpu_physics = "c"  # physics="auto" on a CPU (benchmarks/RESULTS.md#engines)
-    c_envs_per_device = None  # contact physics: one device's engine pool (NOTES)
     metric_keys = ("distance", "progress", "energy", "targets_reached")
 
     def __init__(self, config: WalkConfig | None = None, ground: Ground | None = None) -> None:
