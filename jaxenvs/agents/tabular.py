@@ -29,6 +29,7 @@ discrete-action tasks are supported; a continuous one raises a clear error.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import NamedTuple
 
@@ -323,6 +324,26 @@ def _check_env(env: Env, config: TabularConfig) -> tuple[tuple[float, ...], tupl
     return config.obs_low, config.obs_high
 
 
+def _chunk_metrics(
+    config: TabularConfig, ts: TabularState, out: tuple[jax.Array, ...], active: jax.Array
+) -> dict[str, jax.Array]:
+    """A chunk's metrics from its steps' ``(finished, final return, final length,
+    diverged)`` and the training state after it (``active``: the envs still learning)."""
+    done, ret, length, diverged = out
+    metrics = episode_metrics(done, ret, length)
+    metrics["diverged"] = jnp.sum(diverged).astype(jnp.int32)
+    metrics["env_steps"] = ts.env_steps
+    metrics["episodes"] = jnp.sum(ts.episodes)
+    metrics["epsilon"] = jnp.mean(epsilon_at(config, ts.episodes))
+    metrics["active_envs"] = jnp.sum(active).astype(jnp.int32)
+    return metrics
+
+
+def _greedy(disc: Discretiser, q: jax.Array, obs: jax.Array, key: jax.Array) -> jax.Array:
+    """The greedy action of the table ``q`` at ``obs`` (ties broken by ``key``)."""
+    return greedy_action(q[state_index(disc, obs)], key)
+
+
 def make_trainer(env: Env, config: TabularConfig) -> Trainer:
     """The Q-learning (``QLearningConfig``) or SARSA (``SarsaConfig``) trainer on ``env``.
 
@@ -332,9 +353,8 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
     divergence) to :data:`jaxenvs.agents.base.CHUNK_METRICS`.
     """
     low, high = _check_env(env, config)
-    sarsa = isinstance(config, SarsaConfig)
+    sarsa, num_actions = isinstance(config, SarsaConfig), env.action_size
     disc = make_discretiser(low, high, config.number_splits)
-    num_actions = env.action_size
     # one device here: the runner spreads the whole training state (jaxenvs.core.sharding)
     # vmapped over seeds: a compact reset's loop would run the most chunks any seed needs
     benv = BatchedEnv(env, config.num_envs, devices=1, compact_reset=False)
@@ -392,27 +412,15 @@ def make_trainer(env: Env, config: TabularConfig) -> Trainer:
         return TabularState(q, nxt, next_action, episodes, env_steps, key), (*out, diverged)
 
     def chunk(ts: TabularState) -> tuple[TabularState, dict[str, jax.Array]]:
-        ts, (done, ret, length, diverged) = jax.lax.scan(step, ts, None, length=config.chunk_steps)
-        metrics = episode_metrics(done, ret, length)
-        metrics["diverged"] = jnp.sum(diverged).astype(jnp.int32)
-        metrics["env_steps"] = ts.env_steps
-        metrics["episodes"] = jnp.sum(ts.episodes)
-        metrics["epsilon"] = jnp.mean(epsilon_at(config, ts.episodes))
-        metrics["active_envs"] = jnp.sum(active_mask(ts.episodes)).astype(jnp.int32)
-        return ts, metrics
-
-    def policy_params(ts: TabularState) -> jax.Array:
-        return ts.q
-
-    def act(q: jax.Array, obs: jax.Array, key: jax.Array) -> jax.Array:
-        return greedy_action(q[state_index(disc, obs)], key)
+        ts, out = jax.lax.scan(step, ts, None, length=config.chunk_steps)
+        return ts, _chunk_metrics(config, ts, out, active_mask(ts.episodes))
 
     per_chunk = config.chunk_steps * n
     return Trainer(
         init=init,
         chunk=chunk,
-        policy_params=policy_params,
-        act=act,
+        policy_params=lambda ts: ts.q,
+        act=functools.partial(_greedy, disc),
         steps_per_chunk=per_chunk,
         num_chunks=max(1, -(-config.total_steps // per_chunk)),
     )
