@@ -97,12 +97,15 @@ class Sim:
             edit(self.mj_model)
             if lean:
                 edit(self.physics_mj_model)
-        self.mx = mjx_module().put_model(self.physics_mj_model)
+        # on this process's first device: MJX's default, jax.devices()[0], is process 0's
+        # in a run over several hosts (jaxenvs.run.distributed)
+        here = jax.local_devices()[0]
+        self.mx = mjx_module().put_model(self.physics_mj_model, device=here)
         self.substeps = int(substeps)
         self.timestep = float(timestep)
         # from the host model: the same Data as from ``self.mx`` (tested), built with numpy
         # so that making an env compiles no eager JAX op
-        self._data0 = mjx_module().make_data(self.physics_mj_model)
+        self._data0 = mjx_module().make_data(self.physics_mj_model, device=here)
 
     @property
     def control_dt(self) -> float:

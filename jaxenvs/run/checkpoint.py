@@ -29,6 +29,7 @@ from typing import Any
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 
 from jaxenvs import files
 
@@ -71,6 +72,13 @@ def save(path: str | Path, state: Any, metadata: dict[str, Any] | None = None) -
         if _is_key(leaf):
             impl = str(jax.random.key_impl(leaf))
             leaf = jax.random.key_data(leaf)
+        if (
+            isinstance(leaf, jax.Array)
+            and not leaf.is_fully_addressable
+            and not leaf.is_fully_replicated
+        ):
+            # split over several hosts: every process gathers the whole array
+            leaf = multihost_utils.process_allgather(leaf, tiled=True)
         arr = np.asarray(jax.device_get(leaf))
         arrays[f"leaf_{i:05d}"] = arr
         leaf_info.append({"dtype": str(arr.dtype), "shape": list(arr.shape), "key_impl": impl})
