@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import statistics
 import time
 from collections.abc import Callable
 from typing import Any
@@ -32,6 +33,8 @@ from jaxenvs.physics import native
 PEERS = {"CartPole-v0": "CartPole-v1", "Reacher-v0": "Reacher-v5"}
 #: the suffix of the vector env's row in auto-reset mode SAME_STEP (NEXT_STEP is the default)
 SAME_STEP = "SAME_STEP"
+#: what is timed: the one env (``gym.make``) and the vector env (``gym.make_vec``)
+MODES = ("single", "vector")
 
 
 def _actions(space: gym.Space, count: int, seed: int) -> list[Any]:
@@ -94,70 +97,85 @@ def _rounds(fns: dict[str, Callable[[], float]], rounds: int) -> dict[str, list[
 
 
 def bench_task(
-    env_id: str, steps: int, num_envs: int, vec_steps: int, peer_vec_steps: int, rounds: int
+    env_id: str,
+    steps: int,
+    num_envs: int,
+    vec_steps: int,
+    peer_vec_steps: int,
+    rounds: int,
+    modes: tuple[str, ...] = MODES,
 ) -> dict[str, Any]:
     peer = PEERS.get(env_id)
-    t0 = time.perf_counter()
-    ours = gym.make(f"jaxenvs/{env_id}")
-    raw = gym.make(f"jaxenvs/{env_id}").unwrapped
-    time_single(ours, 2)
-    first_single = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    ours_vec = gym.make_vec(f"jaxenvs/{env_id}", num_envs, vectorization_mode="vector_entry_point")
-    time_vector(ours_vec, 1)
-    first_vec = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    same_vec = gym.make_vec(
-        f"jaxenvs/{env_id}", num_envs, "vector_entry_point", autoreset_mode="same_step"
-    )
-    time_vector(same_vec, 1)
-    first_same = time.perf_counter() - t0
-    single: dict[str, Callable[[], float]] = {
-        "ours (gym.make)": lambda: time_single(ours, steps),
-        "ours (raw JaxEnv)": lambda: time_single(raw, steps),
-    }
-    vector: dict[str, Callable[[], float]] = {
-        f"ours make_vec x{num_envs}": lambda: time_vector(ours_vec, vec_steps),
-        f"ours make_vec x{num_envs}, {SAME_STEP}": lambda: time_vector(same_vec, vec_steps),
-    }
+    timed: dict[str, dict[str, Callable[[], float]]] = {}
+    first: dict[str, float] = {}
+    closing: list[Any] = []
+    if "single" in modes:
+        t0 = time.perf_counter()
+        ours = gym.make(f"jaxenvs/{env_id}")
+        raw = gym.make(f"jaxenvs/{env_id}").unwrapped
+        time_single(ours, 2)
+        first["single"] = time.perf_counter() - t0
+        timed["single"] = {
+            "ours (gym.make)": lambda: time_single(ours, steps),
+            "ours (raw JaxEnv)": lambda: time_single(raw, steps),
+        }
+        closing += [ours, raw]
+    if "vector" in modes:
+        t0 = time.perf_counter()
+        ours_vec = gym.make_vec(
+            f"jaxenvs/{env_id}", num_envs, vectorization_mode="vector_entry_point"
+        )
+        time_vector(ours_vec, 1)
+        first["vector"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        same_vec = gym.make_vec(
+            f"jaxenvs/{env_id}", num_envs, "vector_entry_point", autoreset_mode="same_step"
+        )
+        time_vector(same_vec, 1)
+        first["same_step"] = time.perf_counter() - t0
+        timed["vector"] = {
+            f"ours make_vec x{num_envs}": lambda: time_vector(ours_vec, vec_steps),
+            f"ours make_vec x{num_envs}, {SAME_STEP}": lambda: time_vector(same_vec, vec_steps),
+        }
+        closing += [ours_vec, same_vec]
     if peer is not None:
-        peer_env = gym.make(peer)
-        peer_vec = gym.make_vec(peer, num_envs, vectorization_mode="sync")
-
-        one = functools.partial(time_single, peer_env, steps)
-        many = functools.partial(time_vector, peer_vec, peer_vec_steps)
         clocks = [(False, "")] + ([(True, ", MuJoCo timers off")] if native.available() else [])
-        for off, suffix in clocks:
-            single[f"Gymnasium {peer}{suffix}"] = _with_clock(off, one)
-            vector[f"Gymnasium {peer} SyncVectorEnv x{num_envs}{suffix}"] = _with_clock(off, many)
-    result = {
-        "task": env_id,
-        "peer": peer,
-        "num_envs": num_envs,
-        "first_call_s": {"single": first_single, "vector": first_vec, "same_step": first_same},
-        "single": _rounds(single, rounds),
-        "vector": _rounds(vector, rounds),
-    }
-    for env in (ours, raw, ours_vec, same_vec):
+        if "single" in modes:
+            one = functools.partial(time_single, gym.make(peer), steps)
+            for off, suffix in clocks:
+                timed["single"][f"Gymnasium {peer}{suffix}"] = _with_clock(off, one)
+        if "vector" in modes:
+            peer_vec = gym.make_vec(peer, num_envs, vectorization_mode="sync")
+            many = functools.partial(time_vector, peer_vec, peer_vec_steps)
+            for off, suffix in clocks:
+                name = f"Gymnasium {peer} SyncVectorEnv x{num_envs}{suffix}"
+                timed["vector"][name] = _with_clock(off, many)
+    result: dict[str, Any] = {"task": env_id, "peer": peer, "num_envs": num_envs}
+    result["first_call_s"] = first
+    for mode, fns in timed.items():
+        result[mode] = _rounds(fns, rounds)
+    for env in closing:
         env.close()
     return result
 
 
 def report(result: dict[str, Any]) -> None:
-    rounds = len(next(iter(result["single"].values())))
+    kinds = [k for k in MODES if k in result]
+    rounds = len(next(iter(result[kinds[0]].values())))
     print(f"\n{result['task']} (peer {result['peer']}), best of {rounds} rounds")
-    for kind in ("single", "vector"):
+    for kind in kinds:
         best = {name: max(v) for name, v in result[kind].items()}
+        median = {name: statistics.median(v) for name, v in result[kind].items()}
         for name, value in best.items():
-            print(f"  {kind:6s}  {name:45s} {value:12,.0f} steps/s")
+            print(f"  {kind:6s}  {name:45s} {value:12,.0f} steps/s (median {median[name]:,.0f})")
         names = list(best)
         for peer in (n for n in names if not n.startswith("ours")):
-            print(f"  {kind:6s}  ours/{peer}: {best[names[0]] / best[peer]:.2f}x")
-    print(
-        f"  first call (compile) single {result['first_call_s']['single']:.1f} s, "
-        f"vector {result['first_call_s']['vector']:.1f} s, "
-        f"vector SAME_STEP {result['first_call_s']['same_step']:.1f} s"
-    )
+            print(
+                f"  {kind:6s}  ours/{peer}: {best[names[0]] / best[peer]:.2f}x "
+                f"(medians {median[names[0]] / median[peer]:.2f}x)"
+            )
+    calls = ", ".join(f"{k} {v:.1f} s" for k, v in result["first_call_s"].items())
+    print(f"  first call (compile): {calls}")
 
 
 def main() -> None:
@@ -168,12 +186,21 @@ def main() -> None:
     parser.add_argument("--vec-steps", type=int, default=200, help="our vector steps per round")
     parser.add_argument("--peer-vec-steps", type=int, default=10, help="SyncVectorEnv steps")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument(
+        "--modes", nargs="+", choices=MODES, default=list(MODES), help="one env, vector env"
+    )
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
     results = []
     for env_id in args.tasks:
         res = bench_task(
-            env_id, args.steps, args.num_envs, args.vec_steps, args.peer_vec_steps, args.rounds
+            env_id,
+            args.steps,
+            args.num_envs,
+            args.vec_steps,
+            args.peer_vec_steps,
+            args.rounds,
+            tuple(args.modes),
         )
         report(res)
         results.append(res)
@@ -186,7 +213,7 @@ def rows(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One flat row per task, mode and contender, with the steps/s of every round."""
     out = []
     for r in results:
-        for mode in ("single", "vector"):
+        for mode in (m for m in MODES if m in r):
             for who, rounds in r[mode].items():
                 ours = who.startswith("ours")
                 first = "same_step" if who.endswith(SAME_STEP) else mode
