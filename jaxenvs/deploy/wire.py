@@ -81,13 +81,15 @@ def _int(text: str) -> int | float:
     return int(text) if len(text.lstrip("-")) <= INT_DIGITS else float(text)
 
 
+_DECODER = json.JSONDecoder(parse_int=_int)
+
+
 def _too_deep(obj: Any) -> bool:
     """Whether ``obj`` nests lists and dicts deeper than :data:`MAX_DEPTH` (no recursion)."""
     stack = [(obj, 1)]
     while stack:
         item, depth = stack.pop()
-        children = item.values() if isinstance(item, dict) else item
-        for child in children:
+        for child in item.values() if isinstance(item, dict) else item:
             if isinstance(child, (dict, list)):
                 if depth + 1 > MAX_DEPTH:
                     return True
@@ -100,7 +102,7 @@ def decode(body: bytes) -> dict[str, Any]:
     UTF-8 JSON, nests deeper than :data:`MAX_DEPTH` or is not an object with a string
     ``type``."""
     try:
-        obj = json.loads(body.decode(), parse_int=_int)
+        obj = _DECODER.decode(body.decode())
     except UnicodeDecodeError:
         raise BadMessage("malformed", "not UTF-8") from None
     except RecursionError:
@@ -109,7 +111,8 @@ def decode(body: bytes) -> dict[str, Any]:
         raise BadMessage("malformed", f"not JSON ({str(err)[:80]})") from None
     if not isinstance(obj, dict) or not isinstance(obj.get("type"), str):
         raise BadMessage("malformed", "not a JSON object with a string type")
-    if _too_deep(obj):
+    # at most MAX_DEPTH brackets (strings' included) cannot nest deeper: most frames
+    if body.count(b"[") + body.count(b"{") > MAX_DEPTH and _too_deep(obj):
         raise BadMessage("malformed", f"nested deeper than {MAX_DEPTH}")
     return obj
 
