@@ -1,13 +1,15 @@
 """The hexapod tasks over :mod:`jaxenvs.robots.hexapod`: one family, one base.
 
-=========================  ===========================================================
-``HexapodWalk-v0``          walk from target to target (a new one drawn on arrival);
-                            falls end the episode (:mod:`.walk`)
-``HexapodJoystick-v0``      follow a velocity command from the encoders and IMU only
-                            (:mod:`.joystick`)
-``HexapodOneLeg-v0``        put one leg's foot tip on a reachable target; no contacts
-                            (:mod:`.one_leg`)
-=========================  ===========================================================
+===========================  ===========================================================
+``HexapodWalk-v0``           walk from target to target (a new one drawn on arrival);
+                             falls end the episode (:mod:`.walk`)
+``HexapodJoystick-v0``       follow a velocity command from the encoders and IMU only
+                             (:mod:`.joystick`)
+``HexapodOneLeg-v0``         put one leg's foot tip on a reachable target; no contacts
+                             (:mod:`.one_leg`)
+``HexapodJoystickRough-v0``  the joystick on a terrain of levels x types with a per-env
+                             level curriculum; a blind policy (:mod:`.rough`)
+===========================  ===========================================================
 
 :mod:`.base` holds what they share: the params (``HexapodParams``), the config fields of
 a body on the ground (:class:`~.base.HexapodConfig`: solver, spawn, fall rule, the
@@ -59,6 +61,7 @@ from jaxenvs.tasks.hexapod.joystick import (
     sample_command,
 )
 from jaxenvs.tasks.hexapod.one_leg import HexapodOneLeg, OneLegConfig, OneLegExtras
+from jaxenvs.tasks.hexapod.rough import HexapodJoystickRough, JoystickRoughConfig
 from jaxenvs.tasks.hexapod.walk import OBS_NOISE, TARGET, HexapodWalk, WalkConfig, WalkExtras
 
 __all__ = [
@@ -67,6 +70,7 @@ __all__ = [
     "TARGET",
     "HexapodConfig",
     "HexapodJoystick",
+    "HexapodJoystickRough",
     "HexapodOneLeg",
     "HexapodParams",
     "HexapodRandomization",
@@ -75,6 +79,7 @@ __all__ = [
     "JoystickConfig",
     "JoystickExtras",
     "JoystickParams",
+    "JoystickRoughConfig",
     "OneLegConfig",
     "OneLegExtras",
     "WalkConfig",

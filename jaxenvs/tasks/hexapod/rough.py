@@ -1,0 +1,357 @@
+"""``HexapodJoystickRough-v0``: the joystick task (:mod:`.joystick`) on a terrain of
+difficulty levels x terrain types (:mod:`jaxenvs.scenes.terrain`), with a per-env level
+curriculum; a blind policy and a privileged critic.
+
+* **Ground.** The generated terrain of the config's ``levels``, ``terrain_types``,
+  ``tile_size`` and ``terrain_seed`` (the other generator settings at their defaults:
+  docs/terrain.md) is the scene's ground; the six feet are paired with it. The terrain is
+  generated once per process and config (:func:`terrain_of`).
+* **Curriculum.** Each env's carry (:class:`RoughCarry`) holds its level and its tile's
+  column (its terrain type). At :meth:`~jaxenvs.core.Env.reset` the level is drawn
+  uniformly in ``min_init_level..max_init_level`` and the column among the columns of
+  ``spawn_types`` (every column when empty); the column stays with the env. After each
+  finished episode (:meth:`HexapodJoystickRough._carry_update`, legged_gym's rule by
+  default) the level goes up by one when the body ended farther than ``promote_fraction``
+  of a tile from its spawn (half a tile), else down by one when it covered less than
+  ``demote_fraction`` (half) of the distance its commands asked for; an env promoted past
+  the top level goes to a level drawn uniformly over all of them. With ``curriculum``
+  False the level never changes (an evaluation at fixed levels).
+* **Commanded distance.** The commands are redrawn during an episode (every
+  ``command_interval`` steps), so the distance asked for is the length of the world-frame
+  displacement the commands would have made, each step's commanded (vx, vy) turned by the
+  body's heading at the step; an episode that ended early (a fall) is scaled up to the
+  whole ``episode_length``, as legged_gym compares with the command times the episode's
+  full length.
+* **Start.** The joystick's start (a random yaw, the joints around the stance, at rest)
+  moved onto the env's tile: the body ``init_height`` above the tile's origin
+  (:attr:`jaxenvs.scenes.terrain.Terrain.origins`: its centre, at the highest ground of
+  its flat platform).
+* **Heights.** The body's height, the fall rule (``min_height``) and the ``height``
+  metric are measured above the ground right below the torso's origin
+  (:func:`jaxenvs.scenes.height.height`, MuJoCo's own triangulation), not above z = 0.
+  The joystick's reward reads no height, so it is unchanged.
+* **Observation.** The joystick's, unchanged (encoders, IMU, the last actions, the
+  command): a blind policy that runs on a robot without a height sensor.
+* **Critic.** Privileged metrics a critic may read (PPO's ``critic_info``): the joystick's
+  body velocity (``vel_forward``, ``vel_lateral``, ``yaw_rate``) and ``height``, and a
+  height scan, one scalar per point (``scan_00`` .. ``scan_48``): the ground minus the
+  torso's height at a 7 x 7 grid 7 cm apart in the heading frame (:data:`SCAN_OFFSETS`,
+  x forward, y left, x varying fastest; 0.42 m square, the feet's reach), clipped to
+  +-1 m. PPO's ``critic_info`` takes scalar ``info`` entries, so the scan is 49 of them.
+* **Metrics.** The joystick's, plus ``level`` (the env's level; the run loop reports its
+  mean per chunk in progress.csv, the progress bar and the learning curve) and the scan.
+* **Contact.** The elliptic friction cone (``cone``) and a converged CG solve
+  (``solver_iterations`` 30, ``ls_iterations`` 10): the setting docs/terrain.md measured
+  heading-independent and stable on the heightfield, where the flat tasks' few iterations
+  diverge. Only the feet collide with the ground (the torso and shins pass through it; a
+  body that sinks below ``min_height`` above the ground has fallen).
+* **Episode.** 400 control steps (20 s, legged_gym's episode), four commands.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+
+from jaxenvs.config import require
+from jaxenvs.core import State
+from jaxenvs.robots.base import Readings
+from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
+from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, generate
+from jaxenvs.tasks.hexapod.joystick import (
+    HexapodJoystick,
+    JoystickConfig,
+    JoystickExtras,
+    JoystickParams,
+    heading,
+)
+
+if TYPE_CHECKING:
+    from mujoco import mjx
+
+__all__ = [
+    "CONES",
+    "SCAN_KEYS",
+    "SCAN_OFFSETS",
+    "HexapodJoystickRough",
+    "JoystickRoughConfig",
+    "RoughCarry",
+    "RoughExtras",
+    "terrain_of",
+]
+
+#: the friction cones a config may name
+CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
+#: the critic's height scan: a 7 x 7 grid, 7 cm apart, in the body's heading frame
+SCAN_OFFSETS = scan_grid(7, 7, 0.07)
+#: the scan's metric keys, one per point of :data:`SCAN_OFFSETS`
+SCAN_KEYS = tuple(f"scan_{i:02d}" for i in range(len(SCAN_OFFSETS)))
+#: folded into a finished episode's key for the draw of a level past the top
+_LEVEL_SALT = 0x6C76
+
+
+@dataclasses.dataclass(frozen=True)
+class JoystickRoughConfig(JoystickConfig):
+    """``HexapodJoystickRough-v0`` (the joystick's fields:
+    :class:`~jaxenvs.tasks.hexapod.joystick.JoystickConfig`; the module docstring says how
+    each is used).
+
+    Attributes:
+      episode_length: 400 control steps (20 s).
+      solver_iterations, ls_iterations: a converged CG solve (30 and 10).
+      cone: the friction cone, ``"elliptic"`` (heading-independent) or ``"pyramidal"``.
+      levels: difficulty levels of the terrain (rows of tiles).
+      terrain_types: the terrain type of each column of tiles
+        (:data:`jaxenvs.scenes.terrain.TYPES`).
+      tile_size: side of a tile (m; a multiple of the terrain's 2.5 cm spacing).
+      terrain_seed: the terrain generator's seed.
+      min_init_level, max_init_level: an env's first level is uniform in this range.
+      spawn_types: the terrain types an env may be given (empty: every column).
+      curriculum: move the levels after each episode (False: they stay as drawn).
+      promote_fraction: promote when the body ended farther than this fraction of
+        ``tile_size`` from its spawn ...
+      demote_fraction: ... else demote when it covered less than this fraction of the
+        distance its commands asked for.
+    """
+
+    episode_length: int = 400
+    solver_iterations: int = 30
+    ls_iterations: int = 10
+    cone: str = "elliptic"
+    levels: int = 10
+    terrain_types: tuple[str, ...] = TYPES
+    tile_size: float = 3.0
+    terrain_seed: int = 0
+    min_init_level: int = 0
+    max_init_level: int = 2
+    spawn_types: tuple[str, ...] = ()
+    curriculum: bool = True
+    promote_fraction: float = 0.5
+    demote_fraction: float = 0.5
+
+    nonnegative: ClassVar[tuple[str, ...]] = (*JoystickConfig.nonnegative, "demote_fraction")
+
+    def terrain_config(self) -> TerrainConfig:
+        """The terrain generator's config (its other fields at their defaults)."""
+        return TerrainConfig(
+            levels=self.levels,
+            types=self.terrain_types,
+            tile_size=self.tile_size,
+            seed=self.terrain_seed,
+        )
+
+    def validate(self) -> None:
+        super().validate()
+        require(self.cone in CONES, "cone", f"must be one of {', '.join(CONES)}")
+        require(self.levels >= 1, "levels", "must be >= 1")
+        unknown = sorted(set(self.terrain_types) - set(TYPES))
+        require(bool(self.terrain_types) and not unknown, "terrain_types", f"unknown {unknown}")
+        try:  # what remains to check is the tile's size against the sample spacing
+            self.terrain_config()
+        except ValueError as err:
+            require(False, "tile_size", str(err))
+        require(
+            0 <= self.min_init_level <= self.max_init_level < self.levels,
+            "max_init_level",
+            f"must satisfy 0 <= min_init_level <= max_init_level < levels ({self.levels})",
+        )
+        foreign = sorted(set(self.spawn_types) - set(self.terrain_types))
+        require(not foreign, "spawn_types", f"{foreign} not among terrain_types")
+        require(self.promote_fraction > 0, "promote_fraction", "must be > 0")
+
+
+@functools.lru_cache(maxsize=4)
+def terrain_of(config: TerrainConfig) -> Terrain:
+    """The terrain of ``config`` (:func:`jaxenvs.scenes.terrain.generate`), generated once
+    per process: it is read-only, so every env of one config shares it."""
+    return generate(config)
+
+
+class RoughCarry(struct.PyTreeNode):
+    """An env's curriculum state, kept across its episodes.
+
+    Attributes:
+      level: its difficulty level (int32).
+      column: its tile's column, i.e. its terrain type (int32).
+    """
+
+    level: jax.Array
+    column: jax.Array
+
+
+class RoughExtras(JoystickExtras):
+    """The joystick's extras and what the curriculum reads of an episode.
+
+    Attributes:
+      level: the episode's level (int32; the carry's, for the ``level`` metric).
+      spawn: where the body started (world x, y; m).
+      commanded: the world-frame displacement the commands asked for so far (x, y; m).
+    """
+
+    level: jax.Array
+    spawn: jax.Array
+    commanded: jax.Array
+
+
+class HexapodJoystickRough(HexapodJoystick):
+    """``HexapodJoystickRough-v0`` (the module docstring): the joystick on a terrain with
+    a level curriculum. Observation, action, command and reward as ``HexapodJoystick-v0``;
+    heights above the ground; ``level`` and the height scan among the metrics."""
+
+    metric_keys = (*HexapodJoystick.metric_keys, "level", *SCAN_KEYS)  # type: ignore[assignment]
+    config: JoystickRoughConfig
+
+    def __init__(self, config: JoystickRoughConfig | None = None) -> None:
+        config = config or JoystickRoughConfig()
+        #: the terrain the robot walks on (the scene's ground)
+        self.terrain = terrain_of(config.terrain_config())
+        super().__init__(config, self.terrain)
+        #: the heightfield the height queries read, on the default device once (one
+        #: constant of every compiled program, however many queries read it)
+        self.field = HeightField(*(jnp.asarray(x) for x in self.terrain.field()))
+        self._origins = jnp.asarray(self.terrain.origins)
+        allowed = [
+            i for i, t in enumerate(self.terrain.types) if t in (config.spawn_types or TYPES)
+        ]
+        self._spawn_columns = jnp.asarray(allowed, jnp.int32)
+
+    def model_edit(self, config: JoystickConfig) -> Callable[[mujoco.MjModel], None]:
+        """The joystick's solver settings and the config's friction cone; a brighter
+        headlight (drawing only: the scene's one light is above the world's origin, and
+        most tiles are metres away)."""
+        solver = super().model_edit(config)
+        assert isinstance(config, JoystickRoughConfig)
+        cone = CONES[config.cone]
+
+        def edit(model: mujoco.MjModel) -> None:
+            solver(model)
+            model.opt.cone = cone
+            model.vis.headlight.ambient[:] = 0.35
+            model.vis.headlight.diffuse[:] = 0.55
+
+        return edit
+
+    # ------------------------------------------------------------------ curriculum
+    def _carry_init(self, key: jax.Array, params: JoystickParams) -> RoughCarry:
+        """A level uniform in ``min_init_level..max_init_level``, a column uniform among
+        the ``spawn_types`` columns."""
+        del params
+        c = self.config
+        u = jax.random.uniform(key, (2,))
+        span = c.max_init_level - c.min_init_level + 1
+        level = c.min_init_level + jnp.minimum(jnp.floor(u[0] * span), span - 1)
+        n = self._spawn_columns.shape[0]
+        pick = jnp.minimum(jnp.floor(u[1] * n), n - 1).astype(jnp.int32)
+        return RoughCarry(level=level.astype(jnp.int32), column=self._spawn_columns[pick])
+
+    def _carry_update(self, carry: RoughCarry, final: State, params: JoystickParams) -> RoughCarry:
+        """The next level by the rule of the module docstring, from the finished
+        episode's last state ``final``."""
+        del params
+        c = self.config
+        if not c.curriculum:
+            return carry
+        extras: RoughExtras = final.extras
+        walked = jnp.linalg.norm(final.data.qpos[:2] - extras.spawn)
+        # an episode that ended early is compared with its commands over a whole episode
+        scale = c.episode_length / jnp.maximum(final.time, 1).astype(jnp.float32)
+        asked = jnp.linalg.norm(extras.commanded) * scale
+        up = walked > c.promote_fraction * c.tile_size
+        down = (walked < c.demote_fraction * asked) & ~up
+        level = carry.level + up.astype(jnp.int32) - down.astype(jnp.int32)
+        u = jax.random.uniform(jax.random.fold_in(final.key, _LEVEL_SALT))
+        anywhere = jnp.minimum(jnp.floor(u * c.levels), c.levels - 1).astype(jnp.int32)
+        level = jnp.where(level >= c.levels, anywhere, jnp.maximum(level, 0))
+        return carry.replace(level=level)
+
+    def origin(self, carry: RoughCarry) -> jax.Array:
+        """The world position (x, y, ground z) of the tile of ``carry``'s level and
+        column: where its episodes start."""
+        return self._origins[carry.level, carry.column]
+
+    def _start(
+        self, key: jax.Array, params: JoystickParams, carry: RoughCarry
+    ) -> tuple[mjx.Data, RoughExtras]:
+        """The joystick's start moved onto the env's tile (``init_height`` above its
+        origin)."""
+        data, extras = self._init(key, params)
+        origin = self.origin(carry)
+        data = data.replace(qpos=data.qpos.at[:3].add(origin))
+        fields = {f.name: getattr(extras, f.name) for f in dataclasses.fields(extras)}
+        rough = RoughExtras(
+            **fields, level=carry.level, spawn=origin[:2], commanded=jnp.zeros(2, jnp.float32)
+        )
+        return data, rough
+
+    # ------------------------------------------------------------------ the step
+    def _act(
+        self,
+        key: jax.Array,
+        data: mjx.Data,
+        extras: JoystickExtras,
+        action: jax.Array,
+        params: JoystickParams,
+    ) -> tuple[mjx.Data, RoughExtras]:
+        """The joystick's step, and the step's commanded displacement (the command in
+        force, turned by the heading at the step's start) added to ``commanded``."""
+        assert isinstance(extras, RoughExtras)
+        yaw = heading(data.qpos[3:7])
+        vx, vy = extras.command[0], extras.command[1]
+        cos, sin = jnp.cos(yaw), jnp.sin(yaw)
+        asked = self.control_dt * jnp.stack([cos * vx - sin * vy, sin * vx + cos * vy])
+        data, new = super()._act(key, data, extras, action, params)
+        assert isinstance(new, RoughExtras)
+        return data, new.replace(commanded=extras.commanded + asked)
+
+    def ground(self, xy: jax.Array) -> jax.Array:
+        """The terrain's height (m) at world points ``xy`` (``..., 2``)."""
+        return height(self.field, xy)
+
+    def fallen(self, readings: Readings) -> jax.Array:
+        """The body below ``min_height`` above the ground under it, or tilted past
+        ``min_upright``."""
+        c = self.config
+        pos = readings["torso_pos"]
+        above = pos[2] - self.ground(pos[:2])
+        return (above < c.min_height) | (self.robot.upright(readings) < c.min_upright)
+
+    def _reward(
+        self,
+        prev: mjx.Data,
+        data: mjx.Data,
+        action: jax.Array,
+        extras: JoystickExtras,
+        params: JoystickParams,
+    ) -> tuple[jax.Array, dict[str, jax.Array]]:
+        """The joystick's reward; its ``height`` metric above the ground, ``level`` and
+        the height scan (:data:`SCAN_KEYS`)."""
+        assert isinstance(extras, RoughExtras)
+        reward, metrics = super()._reward(prev, data, action, extras, params)
+        pos = data.qpos[:3]
+        metrics["height"] = pos[2] - self.ground(pos[:2])
+        metrics["level"] = extras.level.astype(jnp.float32)
+        scan = height_scan(self.field, pos, heading(data.qpos[3:7]), SCAN_OFFSETS)
+        scan = jnp.clip(scan, -1.0, 1.0)
+        metrics.update({k: scan[i] for i, k in enumerate(SCAN_KEYS)})
+        return reward, metrics
+
+    # ------------------------------------------------------------------ for tools
+    def tile_of(self, xy: Any) -> tuple[int, int]:
+        """The (level, column) of the generated tile holding world point ``xy`` (host
+        numbers; ``ValueError`` off the tiles)."""
+        cfg = self.terrain.config
+        assert cfg is not None
+        x0, _, y0, _ = self.terrain.tile_bounds(0, 0)
+        col = math.floor((float(xy[0]) - x0) / cfg.tile_size)
+        level = math.floor((float(xy[1]) - y0) / cfg.tile_size)
+        if not (0 <= level < cfg.levels and 0 <= col < len(cfg.types)):
+            raise ValueError(f"({float(xy[0]):.2f}, {float(xy[1]):.2f}) is off the tiles")
+        return level, col
