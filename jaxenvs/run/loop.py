@@ -34,6 +34,7 @@ from jaxenvs.run.evaluation import eval_key
 from jaxenvs.run.placement import resolve_scaling
 from jaxenvs.run.programs import Programs, build_programs
 from jaxenvs.run.results import (
+    LEVEL,
     ProgressBar,
     format_value,
     metric_columns,
@@ -41,6 +42,7 @@ from jaxenvs.run.results import (
     progress_postfix,
     read_progress,
     summarize,
+    task_level,
     write_json,
     write_policy_video,
     write_progress,
@@ -132,6 +134,9 @@ def _prepare(
     # the programs' own eval_shape: XLA options (jaxenvs.core.xla) refuse a nested trace
     template = programs.init_fn.eval_shape(keys)
     metric_shapes = programs.chunk_fn.eval_shape(template)[1]
+    if LEVEL in programs.env.metric_keys:  # a curriculum: its mean level per chunk
+        level = jax.ShapeDtypeStruct((resolved.train.num_seeds,), np.float32)
+        metric_shapes = {**metric_shapes, LEVEL: level}
     columns = metric_columns(metric_shapes)
     return _Run(resolved, out, programs, params_fn, keys, template, columns, say)
 
@@ -228,6 +233,9 @@ def _run_chunk(run: _Run, clock: _Clock, rs: RunState) -> tuple[RunState, Any, f
     state, metrics = run.programs.chunk_fn(rs.state)
     metrics = jax.device_get(metrics)
     seconds = time.perf_counter() - last
+    level = task_level(state) if LEVEL in run.columns else None
+    if level is not None:
+        metrics = {**metrics, LEVEL: level}
     eval_mean = math.nan
     if train_cfg.eval_every and (rs.chunk + 1) % train_cfg.eval_every == 0:
         returns, _, _ = run.programs.evaluate(run.params_fn(state), eval_key(train_cfg.seed))

@@ -21,11 +21,14 @@ import yaml
 
 from jaxenvs import files
 from jaxenvs.agents.base import CHUNK_METRICS
-from jaxenvs.core import Env
+from jaxenvs.core import Env, State
 from jaxenvs.run.run_config import CONFIG_FILE, PROGRESS_FILE
 
 #: the end-of-run video: frames per simulated second (at most) and (width, height)
 VIDEO_FPS, VIDEO_SIZE = 25.0, (640, 480)
+#: the task metric of a curriculum's level (``info["level"]``, per env): a run of a task
+#: that reports it gets each chunk's mean level in progress.csv, the bar and the plot
+LEVEL = "level"
 
 
 # ----------------------------------------------------------------------- progress I/O
@@ -36,6 +39,19 @@ def metric_columns(metric_shapes: Mapping[str, Any]) -> list[str]:
         k for k, v in metric_shapes.items() if k not in CHUNK_METRICS and len(v.shape) == 1
     )
     return ["chunk", "seed", *CHUNK_METRICS, *extra, "eval_return", "wall_seconds", "cpu_seconds"]
+
+
+def task_level(runner_state: Any) -> np.ndarray | None:
+    """Each seed's mean curriculum level over its envs (float64, ``(num_seeds,)``): the
+    :data:`LEVEL` metric of the env state in ``runner_state`` (the first
+    :class:`~jaxenvs.core.State` in it, leading axes seeds then envs); ``None`` when it
+    holds no such state or the task reports no level."""
+    leaves = jax.tree.leaves(runner_state, is_leaf=lambda x: isinstance(x, State))
+    state = next((x for x in leaves if isinstance(x, State)), None)
+    if state is None or LEVEL not in state.info:
+        return None
+    level = np.asarray(jax.device_get(state.info[LEVEL]), np.float64)
+    return level.reshape(level.shape[0], -1).mean(axis=1) if level.ndim else level[None]
 
 
 def read_progress(path: Path) -> list[dict[str, str]]:
@@ -107,6 +123,8 @@ def progress_postfix(metrics: Mapping[str, Any], seconds: float, steps: int) -> 
     rk = _rate_key(metrics)
     if rk is not None:
         postfix[rk] = f"{float(np.mean(metrics[rk])):.3g}"
+    if LEVEL in metrics:
+        postfix[LEVEL] = f"{float(np.mean(metrics[LEVEL])):.2f}"
     return postfix
 
 
@@ -185,8 +203,11 @@ def write_policy_video(
 
 
 # ------------------------------------------------------------------------------ plots
-def learning_curve(run_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(env_steps per chunk, mean_return (chunks, seeds))`` from a run's progress.csv."""
+def learning_curve(
+    run_dir: str | Path, column: str = "mean_return"
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(env_steps per chunk, column (chunks, seeds))`` from a run's progress.csv (NaN
+    where a row lacks the column): ``mean_return`` by default."""
     rows = read_progress(Path(run_dir) / PROGRESS_FILE)
     if not rows:
         raise ValueError(f"{run_dir}: no progress recorded yet ({PROGRESS_FILE})")
@@ -200,19 +221,23 @@ def learning_curve(run_dir: str | Path) -> tuple[np.ndarray, np.ndarray]:
             r = index.get((c, s))
             if r is None:
                 continue
-            ret[i, j] = float(r["mean_return"])
+            value = r.get(column)
+            ret[i, j] = float(value) if value not in (None, "") else math.nan
             steps[i] = max(steps[i], float(r["env_steps"]))
     return steps, ret
 
 
 def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None = None) -> Path:
-    """Return vs env steps of each run: every seed thin, the mean bold, min-max shaded."""
+    """Return vs env steps of each run: every seed thin, the mean bold, min-max shaded;
+    a run with a curriculum adds its mean :data:`LEVEL` (over seeds), dashed, on a second
+    axis."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    levels = None
     for i, run_dir in enumerate(run_dirs):
         steps, ret = learning_curve(run_dir)
         label = labels[i] if labels else _run_label(Path(run_dir))
@@ -225,6 +250,13 @@ def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None 
         with np.errstate(all="ignore"):
             mean = np.nanmean(ret, axis=1) if ret.shape[1] else ret
         ax.plot(steps, mean, color=color, linewidth=2, label=f"{label} ({_seeds(ret.shape[1])})")
+        level = learning_curve(run_dir, LEVEL)[1]
+        if np.isfinite(level).any():
+            levels = levels if levels is not None else ax.twinx()
+            with np.errstate(all="ignore"):
+                levels.plot(steps, np.nanmean(level, axis=1), color=color, linestyle="--")
+    if levels is not None:
+        levels.set_ylabel("mean curriculum level (dashed)")
     ax.set_xlabel("env steps")
     ax.set_ylabel("mean episode return (per chunk)")
     ax.grid(alpha=0.3)
