@@ -37,6 +37,7 @@ import socket
 import sys
 import time
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,15 +64,16 @@ class World:
     ctrl_high: np.ndarray
 
 
-def build_world(env_id: str, seed: int = 0) -> World:
+def build_world(env_id: str, seed: int = 0, overrides: Mapping[str, Any] | None = None) -> World:
     """The world of ``env_id``'s robot: the task's host physics model with its default
-    params, sensors on, and :data:`STARTS` initial states of the task's ``reset``."""
+    params, sensors on, and :data:`STARTS` initial states of the task's ``reset``; the
+    task's config with ``overrides`` (a terrain task's tile: ``jaxenvs robot --terrain``)."""
     import jax
 
     import jaxenvs
     from jaxenvs.robots.interface import spec_of
 
-    env = jaxenvs.make(env_id, physics="c")
+    env = jaxenvs.make(env_id, physics="c", **dict(overrides or {}))
     spec = spec_of(env, env_id)
     model = copy.deepcopy(env.sim.physics_mj_model)
     for name, value in env.default_params.model.items():
