@@ -1,0 +1,260 @@
+"""HexapodJoystickRough-v0 policies per seed: greedy tracking and falls at the middle and the
+top level of the terrain, under MJX and MuJoCo C, and a table of the seeds.
+
+One seed on one GPU (a cold compile cache: the run compiles everything it runs), then its
+evaluation under MJX on that GPU and under MuJoCo C on the CPU::
+
+    jaxenvs train HexapodJoystickRough-v0 --algo ppo --no-video --no-compile-cache \\
+        --seed 0 --out runs/rough_s0
+    python benchmarks/rough_seeds.py eval runs/rough_s0
+    JAX_PLATFORMS=cpu python benchmarks/rough_seeds.py eval runs/rough_s0 --physics c
+    python benchmarks/rough_seeds.py table runs/rough_s0 runs/rough_s1 runs/rough_s2 \\
+        --json ppo_joystick_rough_seeds_h100
+
+``eval`` drives the run's greedy policy in one batch of envs, each for one episode of
+``--seconds`` (20 s) with the command redrawn on the task's schedule over the run's full
+command ranges, pushes and action noise off, the run's observation noise and filter kept,
+the curriculum off (each env stays on its tile), and the task's DEFAULT fall rule (the
+body below 0.06 m above the ground under it, or tilted more than ~45 degrees), whatever
+the run trained with. Groups: ``mid`` (every env at the middle level, ``levels // 2``)
+and ``top`` (the top level), env ``i`` of a group on terrain type ``i mod types`` (every
+type equally), each under the task's default physics params (``default``) and under
+params drawn by ``env.sample_params``, one draw per env (``randomized``). Per group and
+per type: ``fell_fraction`` (envs that fell in the episode), ``tracking_error_lin`` (RMS
+over the env-steps while up of |command - velocity| in the horizontal plane, m/s, the
+body's mean velocity over the control step in its heading frame) and
+``tracking_error_yaw`` (the same of the yaw rate, rad/s). It writes
+``RUN/rough_eval_<physics>.json``.
+
+``table`` collects the eval files, each run's summary.json, progress.csv and config.yaml
+into one row per run: ``seed``, ``train_seconds`` (the run's wall, compile included),
+``final_mean_level`` (progress.csv's ``level`` of the last chunk: the mean over the
+training envs), ``levels``, and for ``mjx``, ``mjx_randomized``, ``mujoco_c`` and
+``mujoco_c_randomized`` a dict with ``mid`` and ``top``, each holding ``fell_fraction``,
+``tracking_error_lin`` and ``tracking_error_yaw``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import results_io
+
+from jaxenvs.core import BatchedEnv
+from jaxenvs.run import runner
+from jaxenvs.tasks.hexapod.rough import HexapodJoystickRough, RoughCarry
+
+ID = "HexapodJoystickRough-v0"
+FIGURES = ("fell_fraction", "tracking_error_lin", "tracking_error_yaw")
+#: (record field, engine, params group) of each bench in a ``table`` row
+BENCHES = (
+    ("mjx", "mjx", "default"),
+    ("mjx_randomized", "mjx", "randomized"),
+    ("mujoco_c", "c", "default"),
+    ("mujoco_c_randomized", "c", "randomized"),
+)
+
+
+def eval_env(run_dir: str, physics: str | None) -> tuple[HexapodJoystickRough, Any]:
+    """The run's env as ``eval`` measures it (module docstring) and its greedy policy."""
+    env_id, env, act = runner.load_policy(run_dir, physics)
+    if env_id != ID or not isinstance(env, HexapodJoystickRough):
+        raise SystemExit(f"{run_dir} is a run of {env_id}, not {ID}")
+    default = type(env.config)()
+    config = dataclasses.replace(
+        env.config,
+        min_height=default.min_height,
+        min_upright=default.min_upright,
+        push_probability=0.0,
+        action_noise=0.0,
+        curriculum=False,
+    )
+    return HexapodJoystickRough(config), act
+
+
+def tiles(env: HexapodJoystickRough, n: int) -> RoughCarry:
+    """The carries of the four groups of ``n`` envs, in the order default mid, default
+    top, randomized mid, randomized top; env ``i`` of a group on column ``i mod types``."""
+    c = env.config
+    levels = np.repeat([c.levels // 2, c.levels - 1] * 2, n)
+    columns = np.tile(np.arange(n) % len(c.terrain_types), 4)
+    return RoughCarry(level=jnp.asarray(levels, jnp.int32), column=jnp.asarray(columns, jnp.int32))
+
+
+def rollout(env: HexapodJoystickRough, act: Any, n: int, steps: int, seed: int) -> dict[str, Any]:
+    """Each env's per-step errors and whether it was up before and after each step
+    ((steps, 4 n) arrays), from the starts of :func:`tiles`."""
+    carry = tiles(env, n)
+    keys = jax.random.split(jax.random.key(seed), 4 * n)
+    split = (slice(0, 2 * n), slice(2 * n, 4 * n))
+    plain = BatchedEnv(env, 2 * n, devices=1).fresh_starts(
+        keys[split[0]], None, jax.tree.map(lambda x: x[split[0]], carry)
+    )
+    drawn = BatchedEnv(env, 2 * n, randomize=True, devices=1).fresh_starts(
+        keys[split[1]], None, jax.tree.map(lambda x: x[split[1]], carry)
+    )
+    default = jax.tree.map(lambda x: jnp.broadcast_to(x, (2 * n, *x.shape)), env.default_params)
+    params = jax.tree.map(lambda *xs: jnp.concatenate(xs), default, drawn.params)
+    state = jax.tree.map(lambda *xs: jnp.concatenate(xs), plain, drawn.replace(params=None))
+
+    def body(carry: Any, _: None) -> tuple[Any, dict[str, jax.Array]]:
+        s, up = carry
+        a = jax.vmap(act)(s.obs, jax.random.split(s.key[0], 4 * n))
+        nxt = jax.vmap(env.step)(s, a, params)
+        after = up & ~nxt.terminated
+        out = {"lin": nxt.info["lin_error"], "yaw": nxt.info["yaw_error"], "up": up}
+        return (nxt, after), out | {"after": after}
+
+    run = jax.jit(lambda s: jax.lax.scan(body, (s, jnp.ones(4 * n, bool)), None, length=steps))
+    return jax.device_get(run(state)[1])
+
+
+def figures(x: dict[str, np.ndarray]) -> dict[str, float]:
+    """``fell_fraction`` and the RMS tracking errors of (steps, envs) arrays."""
+
+    def rms(err: np.ndarray) -> float:
+        up = x["up"]  # selected, not multiplied: a fallen env's physics may be NaN
+        return float(np.sqrt(np.where(up, err * err, 0.0).sum() / max(up.sum(), 1)))
+
+    return {
+        "fell_fraction": float(1.0 - x["after"][-1].mean()),
+        "tracking_error_lin": rms(x["lin"]),
+        "tracking_error_yaw": rms(x["yaw"]),
+    }
+
+
+def evaluate(
+    run_dir: str, physics: str | None, envs: int, seed: int, seconds: float
+) -> dict[str, Any]:
+    """The figures of one run (module docstring)."""
+    env, act = eval_env(run_dir, physics)
+    steps = round(seconds / env.control_dt)
+    if steps >= env.config.episode_length:
+        env = HexapodJoystickRough(dataclasses.replace(env.config, episode_length=steps + 1))
+    start = time.perf_counter()
+    out = rollout(env, act, envs, steps, seed)
+    c = env.config
+    result: dict[str, Any] = {
+        "physics": env.physics,
+        "device": jax.devices()[0].device_kind,
+        "envs_per_group": envs,
+        "seconds": steps * env.control_dt,
+        "levels": c.levels,
+        "mid_level": c.levels // 2,
+        "top_level": c.levels - 1,
+        "types": list(c.terrain_types),
+        "wall_seconds": round(time.perf_counter() - start, 2),  # compile included
+    }
+    types = np.arange(envs) % len(c.terrain_types)
+    for g, (params, level) in enumerate(
+        (p, lv) for p in ("default", "randomized") for lv in ("mid", "top")
+    ):
+        x = {k: np.asarray(v)[:, g * envs : (g + 1) * envs] for k, v in out.items()}
+        per_type = {
+            name: figures({k: v[:, types == t] for k, v in x.items()})
+            for t, name in enumerate(c.terrain_types)
+        }
+        result.setdefault(params, {})[level] = figures(x) | {"types": per_type}
+    return result
+
+
+def eval_file(physics: str) -> str:
+    return f"rough_eval_{physics}.json"
+
+
+def final_level(run: Path) -> float:
+    """The mean over seeds of progress.csv's ``level`` in the run's last chunk."""
+    rows = runner.read_progress(run / runner.PROGRESS_FILE)
+    if not rows or "level" not in rows[0]:
+        raise SystemExit(f"{run}: progress.csv holds no level (not a curriculum run?)")
+    last = max(int(r["chunk"]) for r in rows)
+    return float(np.mean([float(r["level"]) for r in rows if int(r["chunk"]) == last]))
+
+
+def row(run_dir: str) -> dict[str, Any]:
+    """One table row (module docstring)."""
+    run = Path(run_dir)
+    config = runner.load_run_config(run)
+    if config.env_id != ID:
+        raise SystemExit(f"table: {run_dir} is a run of {config.env_id}, not {ID}")
+    summary = json.loads((run / runner.SUMMARY_FILE).read_text())
+    evals = {
+        physics: json.loads((run / eval_file(physics)).read_text())
+        for physics in ("mjx", "c")
+        if (run / eval_file(physics)).exists()
+    }
+    out: dict[str, Any] = {
+        "seed": config.train.seed,
+        "run": run.name,
+        "train_seconds": summary["wall_seconds"],
+        "final_mean_level": round(final_level(run), 4),
+        "levels": config.env.levels,
+        "env_steps": summary["env_steps"],
+    }
+    if "mjx" in evals:
+        out["gpu"] = evals["mjx"]["device"]
+    for field, physics, params in BENCHES:
+        if physics in evals:
+            groups = evals[physics][params]
+            out[field] = {
+                level: {k: round(groups[level][k], 4) for k in FIGURES} for level in ("mid", "top")
+            }
+    return out
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    ev = sub.add_parser("eval", help="measure one run")
+    ev.add_argument("run_dir")
+    ev.add_argument("--physics", choices=("mjx", "c"), default=None)
+    ev.add_argument("--envs", type=int, default=280, help="envs per group (default 280)")
+    ev.add_argument("--seed", type=int, default=123)
+    ev.add_argument("--seconds", type=float, default=20.0, help="episode length (s)")
+    tb = sub.add_parser("table", help="one row per evaluated run")
+    tb.add_argument("run_dirs", nargs="+")
+    tb.add_argument("--json", metavar="NAME", required=True, help=results_io.HELP)
+    tb.add_argument("--machine", default=None, help="where the runs trained and were evaluated")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = _parser().parse_args(argv)
+    if args.command == "eval":
+        if args.envs < 1 or not 0 < args.seconds <= 600:
+            raise SystemExit("--envs must be >= 1 and --seconds in (0, 600]")
+        result = evaluate(args.run_dir, args.physics, args.envs, args.seed, args.seconds)
+        path = Path(args.run_dir) / eval_file(result["physics"])
+        path.write_text(json.dumps(result, indent=2) + "\n")
+        brief = {k: v for k, v in result.items() if k not in ("default", "randomized")}
+        for params in ("default", "randomized"):
+            for level in ("mid", "top"):
+                brief[f"{params}_{level}"] = {
+                    k: round(result[params][level][k], 4) for k in FIGURES
+                }
+        print(json.dumps(brief, indent=1))
+        print(f"wrote {path}")
+        return
+    rows = sorted((row(r) for r in args.run_dirs), key=lambda r: r["seed"])
+    rec = results_io.record(
+        args.json,
+        f"{ID} PPO per seed: train wall, final level, falls and tracking at mid and top",
+        rows,
+        description=args.machine or "training and the mjx eval on the gpu named; C on the CPU",
+        engine="mjx: mjx*; MuJoCo C: mujoco_c*",
+    )
+    rec["machine"]["gpu"] = sorted({r["gpu"] for r in rows if "gpu" in r})
+    results_io.write(args.json, rec)
+    print(json.dumps(rows, indent=2))
+
+
+if __name__ == "__main__":
+    main()
