@@ -120,10 +120,7 @@ def spread_programs(
     docstring describes; ``trainer`` is the run's one-device trainer."""
     num_seeds = resolved.train.num_seeds
     if seeds_over_devices(num_seeds, mesh.size):
-        split = PartitionSpec(mesh.axis_names[0])
-        init = per_device(jax.vmap(trainer.init), mesh, (split,), split)
-        chunk = per_device(jax.vmap(trainer.chunk), mesh, (split,), (split, split))
-        return SpreadPrograms(trainer, jit(init), jit(chunk), True)
+        return SpreadPrograms(trainer, *seeds_programs(trainer, mesh), True)
     _, make_trainer = algorithm(resolved.algo)
     if "mesh" in inspect.signature(make_trainer).parameters:
         spread = make_trainer(env, resolved.agent, mesh=mesh)  # type: ignore[call-arg]
@@ -133,6 +130,17 @@ def spread_programs(
         trainer, mesh, resolved.agent.num_envs, num_seeds=num_seeds
     )
     return SpreadPrograms(trainer, init_fn, chunk_fn, False)
+
+
+def seeds_programs(trainer: Trainer, mesh: Mesh) -> tuple[Any, Any]:
+    """Jitted ``init(keys)`` and ``chunk(state)`` of a one-device ``trainer``, ``vmap``-ed
+    over seeds whose axis is split over ``mesh``: each device trains its own seeds as a
+    program of its own (:func:`jaxenvs.agents.ppo.parallel.per_device`), and nothing
+    crosses devices. The seed count must be a multiple of the mesh's size."""
+    split = PartitionSpec(mesh.axis_names[0])
+    init = per_device(jax.vmap(trainer.init), mesh, (split,), split)
+    chunk = per_device(jax.vmap(trainer.chunk), mesh, (split,), (split, split))
+    return jit(init), jit(chunk)
 
 
 def mesh_evaluator(
