@@ -1,8 +1,7 @@
 """Pure PPO math: generalised advantage estimation, the clipped losses and their sum.
 
 Every function here is a pure function of arrays (no networks, no env), so each can be
-checked against small hand-computed cases (``tests/agents/test_ppo.py``,
-``tests/agents/test_ppo_pieces.py``).
+checked against small hand-computed cases (``tests/agents/test_ppo.py``).
 """
 
 from __future__ import annotations
