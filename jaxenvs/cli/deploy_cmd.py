@@ -254,7 +254,6 @@ def _drive(
 
     from jaxenvs.deploy import loop
     from jaxenvs.deploy.commands import input_range
-    from jaxenvs.deploy.link import check_actuator_limits
 
     model = env.sim.physics_mj_model
     truth = {
@@ -266,8 +265,7 @@ def _drive(
     if commands is not None:
         commands.expect(task_shape, spec.env_id, input_range(env))
     theirs = robot.connect()
-    spec.check_matches(theirs)
-    check_actuator_limits(spec, theirs)
+    spec.check_matches(theirs)  # sensors, actuators and their limits, control period
     if robot.privileged:
         robot.set_state_sizes(model.nq, model.nv, model.nmocap)
     elif host.needs_input and commands is None:

@@ -171,8 +171,7 @@ class GymnaxEnv(environment.Environment):  # type: ignore[misc]
             # a new episode from the env's carry after the finished one (a task's
             # curriculum level, counters), as the batched env's auto-reset starts it
             carry = self.jax_env.next_carry(final, params.task)
-            keys = jax.random.split(key_reset, 3)
-            return self.jax_env._reset_from(keys, params.task, carry)
+            return self.jax_env.reset_carried(key_reset, params.task, carry)
 
         # unbatched, the fresh start is computed only where the episode ended; under vmap
         # both branches run and the batched predicate selects, as gymnax's own step does

@@ -300,6 +300,14 @@ class Env(abc.ABC, Generic[ConfigT]):
         check_key(key, f"{type(self).__name__}.reset")
         return self._reset_from(jax.random.split(key, 3), params, self.initial_carry(key, params))
 
+    def reset_carried(self, key: jax.Array, params: Params, carry: PyTree) -> State:
+        """An episode started from ``key`` as :meth:`reset` starts it, but with the env's
+        ``carry`` kept (what an auto-reset does for one env: pass
+        :meth:`next_carry` of the finished episode's last state)."""
+        check_key(key, f"{type(self).__name__}.reset_carried")
+        params = self.default_params if params is None else params
+        return self._reset_from(jax.random.split(key, 3), params, carry)
+
     def initial_carry(self, key: jax.Array, params: Params = None) -> PyTree:
         """The carry :meth:`reset` with ``key`` starts the env with."""
         params = self.default_params if params is None else params

@@ -68,6 +68,11 @@ class Unavailable:
 
     __slots__ = ("name", "why")
 
+    def __reduce__(self) -> tuple[Any, tuple[str, str]]:
+        # copy and pickle rebuild it from its two names (its __getattr__ and
+        # __setattr__ refuse every attribute, which the default protocol reads and sets)
+        return (Unavailable, (self.name, self.why))
+
     def __init__(self, name: str, why: str = "layout") -> None:
         object.__setattr__(self, "name", name)
         #: ``"layout"`` (the C engine has no such field) or ``"undeclared"`` (the task's

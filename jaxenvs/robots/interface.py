@@ -23,6 +23,7 @@ imports JAX when it is built.
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 from collections.abc import Mapping
 from typing import Any, Protocol, runtime_checkable
@@ -109,7 +110,7 @@ class RobotSpec:
                 ),
                 control_dt=float(obj["control_dt"]),
             )
-        except (KeyError, TypeError, ValueError) as err:
+        except (KeyError, TypeError, ValueError, OverflowError) as err:
             raise ValueError(f"bad robot description: {type(err).__name__} {err}") from None
         if not spec.control_dt > 0 or any(s.size < 1 for s in spec.sensors):
             raise ValueError("bad robot description: control_dt and sensor sizes must be > 0")
@@ -121,7 +122,10 @@ class RobotSpec:
 
     def check_matches(self, other: RobotSpec) -> None:
         """``ValueError`` naming the first difference in what the two robots read and
-        take (sensor names and sizes, actuator names, control period)."""
+        take: sensor names and sizes, actuator names and command ranges (each actuator's
+        ``ctrl`` at actions -1 and +1, to a relative 1e-6; a NaN never matches: a robot
+        that would apply another force than the policy was trained with), control
+        period."""
         if other.robot != self.robot:
             raise ValueError(f"the robot is a {other.robot}, the task needs a {self.robot}")
         if other.sizes() != self.sizes():
@@ -129,7 +133,17 @@ class RobotSpec:
         names = [a.name for a in self.actuators]
         if [a.name for a in other.actuators] != names:
             raise ValueError(f"the robot's actuators differ from {names}")
-        if abs(other.control_dt - self.control_dt) > 1e-9:
+        for want, have in zip(self.actuators, other.actuators, strict=True):
+            same = all(
+                math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-9)
+                for a, b in ((want.low, have.low), (want.high, have.high))
+            )
+            if not same:
+                raise ValueError(
+                    f"the robot's actuator {want.name} takes {have.low:g}..{have.high:g} at "
+                    f"actions -1..1, the task's {want.low:g}..{want.high:g}"
+                )
+        if not abs(other.control_dt - self.control_dt) <= 1e-9:
             raise ValueError(
                 f"the robot's control period {other.control_dt} s is not the task's "
                 f"{self.control_dt} s"

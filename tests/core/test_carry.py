@@ -75,6 +75,9 @@ def test_a_reset_starts_a_new_carry():
     state = env.reset(jax.random.key(5))
     assert int(state.carry) == 0
     assert int(env.next_carry(state)) == 1
+    again = env.reset_carried(jax.random.key(5), None, env.next_carry(state))
+    assert int(again.carry) == 1  # the carried start: reset's, the cart 1 mm to the right
+    np.testing.assert_allclose(again.data.qpos[0], state.data.qpos[0] + 1e-3, atol=1e-7)
 
 
 @pytest.mark.full

@@ -263,3 +263,26 @@ def test_spec_command_ends_give_the_robots_command_map(world):
             np.testing.assert_allclose(linear, np.asarray(robot.command(a)), atol=1e-6)
     ep = simrobot._Episode(world, world.starts[0], None)
     np.testing.assert_allclose(ep.ctrl_of(np.array([0.3])), [0.3], atol=1e-12)
+
+
+def test_a_spec_checks_every_declared_field_actuator_limits_included():
+    """A robot declaring other actuator limits (100x the task's force), a size of 1e400 or
+    a NaN control period is refused in one line by the spec itself."""
+    import dataclasses
+
+    spec = spec_of(jaxenvs.make("CartPole-v0"), "CartPole-v0")
+    wide = dataclasses.replace(
+        spec,
+        actuators=tuple(
+            dataclasses.replace(a, low=100 * a.low, high=100 * a.high) for a in spec.actuators
+        ),
+    )
+    with pytest.raises(ValueError, match="actuator .* takes"):
+        spec.check_matches(wide)
+    nan = dataclasses.replace(spec, control_dt=float("nan"))
+    with pytest.raises(ValueError, match="control period"):
+        spec.check_matches(nan)
+    hello = spec.to_json()
+    hello["sensors"][0]["size"] = 1e400
+    with pytest.raises(ValueError, match="bad robot description"):
+        RobotSpec.from_json(hello)

@@ -311,3 +311,14 @@ def test_every_maker_applies_the_engine_rule():
     assert CartPole().physics == resolve_engine(CartPole, "auto")
     if on_cpu:
         assert jaxenvs.make("CartPole-v0", num_envs=4096, physics="c").env.physics == "c"
+
+
+def test_an_unavailable_field_copies_and_pickles():
+    """A C state's stand-in for a field the engine does not write survives copy and pickle
+    (a Gymnasium env holding a C state deep-copies)."""
+    import copy
+    import pickle
+
+    u = cengine.Unavailable("xpos", "derived")
+    for v in (copy.deepcopy(u), pickle.loads(pickle.dumps(u))):
+        assert isinstance(v, cengine.Unavailable) and (v.name, v.why) == ("xpos", "derived")
