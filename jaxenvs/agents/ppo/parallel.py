@@ -44,7 +44,8 @@ def state_specs(axis: str, critic: bool) -> RunnerState:
     """Where a runner state's fields live over a mesh axis ``axis``: the env batch split
     along its leading axis, the rest replicated (``critic``: the state keeps critic
     statistics)."""
-    split, whole = PartitionSpec(axis), PartitionSpec()
+    split: Any = PartitionSpec(axis)
+    whole: Any = PartitionSpec()
     return RunnerState(
         params=whole,
         opt_state=whole,

@@ -5,7 +5,7 @@ rollout and of a chunk."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import jax
 import jax.numpy as jnp
@@ -187,12 +187,17 @@ def make_collect(env_step: EnvStep, config: PPOConfig, devices: Devices) -> Coll
         ep = episode_stats(traj)
         bases = (start.obs_stats, start.critic_stats, start.ret_stats)
         sums = [
-            None if a is None else shifted_sums(a, b.mean) for a, b in zip(acc, bases, strict=True)
+            None if a is None or b is None else shifted_sums(a, b.mean)
+            for a, b in zip(acc, bases, strict=True)
         ]
         totals = ("n", "ret_sum", "len_sum", "diverged")
         sums, added = devices.sum((sums, {k: ep[k] for k in totals}))
-        merged = [b if s is None else merge_sums(b, s) for b, s in zip(bases, sums, strict=True)]
-        rs = rs._replace(obs_stats=merged[0], critic_stats=merged[1], ret_stats=merged[2])
+        obs, critic, ret = (
+            b if s is None or b is None else merge_sums(b, s)
+            for b, s in zip(bases, sums, strict=True)
+        )
+        rs = rs._replace(obs_stats=cast(RunningStats, obs), ret_stats=cast(RunningStats, ret))
+        rs = rs._replace(critic_stats=critic)
         return rs, traj, {**added, "ret_max": devices.max(ep["ret_max"])}
 
     return collect

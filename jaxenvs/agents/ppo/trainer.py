@@ -84,7 +84,9 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig, mesh: Mesh | None = N
         steps_per_chunk=c.steps_per_chunk,
         num_chunks=c.num_chunks,
     )
-    return parallel.over_mesh(trainer, mesh, bool(c.critic_info)) if devices.parallel else trainer
+    if mesh is None or not devices.parallel:
+        return trainer
+    return parallel.over_mesh(trainer, mesh, bool(c.critic_info))
 
 
 def _make_init(
