@@ -15,7 +15,7 @@ from jaxenvs.cli import checks, engine_args
 HELP = "train an agent (qlearning, sarsa, ppo) and write its results to a run directory"
 
 #: flags that set a field of the agent config / of the run config
-AGENT_FLAGS = {"num_envs": "num_envs", "total_steps": "total_steps"}
+AGENT_FLAGS = {"num_envs": "num_envs", "total_steps": "total_steps", "scaling": "scaling"}
 RUN_FLAGS = {"seed": "seed", "num_seeds": "num_seeds", "eval_episodes": "eval_episodes"}
 
 
@@ -43,6 +43,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         help="split the env batch over the first N devices (default: all; N must divide "
         "--num-envs)",
+    )
+    parser.add_argument(
+        "--scaling",
+        choices=("strong", "weak"),
+        help="PPO over several devices: split --num-envs over them (strong, the default) "
+        "or give each device --num-envs envs (weak)",
     )
     parser.add_argument("--out", metavar="DIR", help="run directory (default runs/ENV-ALGO-TIME)")
     parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR")
