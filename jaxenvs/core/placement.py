@@ -205,66 +205,108 @@ def spread(mesh: Mesh | None, fn: Callable[..., Any], *args: Any) -> Any:
 def per_device(mesh: Mesh, fn: Callable[..., Any], *args: Any) -> Any:
     """``fn(first, second, rest)`` run by each device of ``mesh`` on its own slice of the
     first two arguments' leading (env) axis (``rest`` whole on every device), as a
-    :func:`jax.shard_map`; the result's leading axis is split the same way.
+    :func:`jax.shard_map` (:func:`shard_map_lean`); the result's leading axis is split the
+    same way.
 
     Unlike :func:`spread`, nothing is decided across devices: a data-dependent loop in
     ``fn`` (the auto-reset's, sized by the finished envs) runs as many iterations on each
-    device as that device's slice needs. Leaves with no elements (an ``mjx.Data``'s
-    contact and constraint arrays of a model without contacts) do not cross the
-    ``shard_map``'s boundary: they are made as zeros of their shape on each side (XLA's CPU
-    compiler in jax 0.11.2 crashes on a ``shard_map`` whose operands or results mix empty
-    and non-empty arrays; benchmarks/NOTES.md).
+    device as that device's slice needs.
     """
-    first, second, rest = args
-    shards = mesh.size
-    leaves, tree = jax.tree.flatten((first, second, rest))
-    # Python scalars among the leaves (a param given as a float) become arrays, as under jit
-    leaves = [x if isinstance(x, jax.Array | np.ndarray) else jnp.asarray(x) for x in leaves]
-    num_split = len(jax.tree.leaves((first, second)))
-    kept = [i for i, x in enumerate(leaves) if x.size]
     split, whole = PartitionSpec(ENV_AXIS), PartitionSpec()
-    specs = [split if i < num_split else whole for i in kept]
-    # the result's structure and leaf shapes, learnt while fn is traced
-    result: list[tuple[Any, list[jax.ShapeDtypeStruct]]] = []
+    # jit as in spread: inlined when the caller is traced
+    return jax.jit(shard_map_lean(fn, mesh, (split, split, whole), split))(*args)
 
-    def local(kept_leaves: list[jax.Array]) -> list[jax.Array]:
-        given = iter(kept_leaves)
-        full = [
-            next(given) if x.size else jnp.zeros(_slice_shape(x, shards, i < num_split), x.dtype)
-            for i, x in enumerate(leaves)
+
+def shard_map_lean(fn: Callable[..., Any], mesh: Mesh, in_specs: Any, out_specs: Any) -> Any:
+    """``jax.shard_map(fn, mesh=mesh, in_specs=in_specs, out_specs=out_specs)`` through
+    whose boundary no array with no elements passes: such operands and results (an
+    ``mjx.Data``'s contact arrays of a model without contacts, say) are made as zeros of
+    their shape on each side, as are ``fn``'s empty closed-over constants (XLA's CPU
+    compiler in jax 0.11.2 crashes on a ``shard_map`` whose operands or results mix
+    empty and non-empty arrays; benchmarks/NOTES.md). The specs split a leaf along its
+    leading axis over the mesh's one axis or leave it whole; Python scalars among the
+    arguments become arrays, as under ``jit``.
+
+    The varying-axes check is off: ``fn`` steps envs with one-device code (loops whose
+    carries mix a device's values with constants); what the specs call whole must be the
+    same on every device by construction (a batch's params; a trainer's:
+    :mod:`jaxenvs.agents.ppo.devices`).
+    """
+    shards = mesh.size
+    # per result leaf, learnt while fn is traced: its spec and its local shape and dtype
+    traced: list[tuple[Any, list[tuple[PartitionSpec, jax.ShapeDtypeStruct]]]] = []
+
+    def local(split: list[jax.Array], whole: list[jax.Array], layout: Any, tree: Any) -> Any:
+        given = {"split": iter(split), "whole": iter(whole)}
+        args = [
+            next(given[kind]) if size else jnp.zeros(shape, dtype)
+            for kind, size, shape, dtype in layout
         ]
-        # fn's closed-over arrays would cross the boundary as operands too: its empty ones
-        # are made here instead (the others cross, replicated)
         closed, out = jax.make_jaxpr(
             lambda *a: fn(*jax.tree.unflatten(tree, a)), return_shape=True
-        )(*full)
+        )(*args)
         consts = [c if c.size else jnp.zeros(c.shape, c.dtype) for c in closed.consts]
-        run_fn = jax.extend.core.jaxpr_as_fun(jax.extend.core.ClosedJaxpr(closed.jaxpr, consts))
+        run = jax.extend.core.jaxpr_as_fun(jax.extend.core.ClosedJaxpr(closed.jaxpr, consts))
+        results = run(*args)
+        specs = _leaf_specs(out_specs, out)
         out_leaves, out_tree = jax.tree.flatten(out)
-        result.append((out_tree, out_leaves))
-        return [y for y, s in zip(run_fn(*full), out_leaves, strict=True) if s.size]
+        traced.append((out_tree, list(zip(specs, out_leaves, strict=True))))
+        kept = [(s, y) for s, y, o in zip(specs, results, out_leaves, strict=True) if o.size]
+        return [y for s, y in kept if s != PartitionSpec()], [
+            y for s, y in kept if s == PartitionSpec()
+        ]
 
-    def run(kept_leaves: list[jax.Array]) -> Any:
-        # check_vma off: fn is a one-device program (its reset loop's carry mixes the
-        # device's own values with constants, which the check would ask to be cast)
+    def call(*args: Any) -> Any:
+        leaves, tree = jax.tree.flatten(args)
+        leaves = [x if isinstance(x, jax.Array | np.ndarray) else jnp.asarray(x) for x in leaves]
+        specs = _leaf_specs(in_specs, args)
+        layout = [
+            (
+                "whole" if s == PartitionSpec() else "split",
+                x.size,
+                _local_shape(x.shape, s, shards),
+                x.dtype,
+            )
+            for s, x in zip(specs, leaves, strict=True)
+        ]
+        split = [x for s, x in zip(specs, leaves, strict=True) if x.size and s != PartitionSpec()]
+        whole = [x for s, x in zip(specs, leaves, strict=True) if x.size and s == PartitionSpec()]
+        axis = mesh.axis_names[0]
         mapped = jax.shard_map(
-            local, mesh=mesh, in_specs=(specs,), out_specs=split, check_vma=False
+            lambda a, b: local(a, b, layout, tree),
+            mesh=mesh,
+            in_specs=(PartitionSpec(axis), PartitionSpec()),
+            out_specs=(PartitionSpec(axis), PartitionSpec()),
+            check_vma=False,
         )
-        out = iter(mapped(kept_leaves))
-        out_tree, shapes = result[-1]
-        return jax.tree.unflatten(
-            out_tree,
-            [
-                next(out) if y.size else jnp.zeros((y.shape[0] * shards, *y.shape[1:]), y.dtype)
-                for y in shapes
-            ],
-        )
+        got_split, got_whole = mapped(split, whole)
+        out_tree, info = traced[-1]
+        given = {"split": iter(got_split), "whole": iter(got_whole)}
+        out = [
+            next(given["whole" if s == PartitionSpec() else "split"])
+            if y.size
+            else jnp.zeros(_global_shape(y.shape, s, shards), y.dtype)
+            for s, y in info
+        ]
+        return jax.tree.unflatten(out_tree, out)
 
-    # jit as in spread: inlined when the caller is traced
-    return jax.jit(run)([leaves[i] for i in kept])
+    return call
 
 
-def _slice_shape(x: Any, shards: int, split: bool) -> tuple[int, ...]:
-    """The shape of one device's part of ``x``: its leading axis split ``shards`` ways, or
-    whole."""
-    return (x.shape[0] // shards, *x.shape[1:]) if split else tuple(x.shape)
+def _leaf_specs(specs: Any, tree: Any) -> list[PartitionSpec]:
+    """The spec of every leaf of ``tree``, from ``specs`` (a prefix of its structure)."""
+    nested = jax.tree.map(
+        lambda s, sub: jax.tree.map(lambda _: s, sub),
+        specs,
+        tree,
+        is_leaf=lambda x: isinstance(x, PartitionSpec),
+    )
+    return jax.tree.leaves(nested, is_leaf=lambda x: isinstance(x, PartitionSpec))
+
+
+def _local_shape(shape: tuple[int, ...], spec: PartitionSpec, shards: int) -> tuple[int, ...]:
+    return shape if spec == PartitionSpec() else (shape[0] // shards, *shape[1:])
+
+
+def _global_shape(shape: tuple[int, ...], spec: PartitionSpec, shards: int) -> tuple[int, ...]:
+    return shape if spec == PartitionSpec() else (shape[0] * shards, *shape[1:])

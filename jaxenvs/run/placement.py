@@ -32,7 +32,6 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from jaxenvs import registry
 from jaxenvs.agents.base import Trainer
-from jaxenvs.agents.ppo.parallel import per_device
 from jaxenvs.core import BatchedEnv, Env, placement
 from jaxenvs.core.sharding import (
     KeyPath,
@@ -135,11 +134,11 @@ def spread_programs(
 def seeds_programs(trainer: Trainer, mesh: Mesh) -> tuple[Any, Any]:
     """Jitted ``init(keys)`` and ``chunk(state)`` of a one-device ``trainer``, ``vmap``-ed
     over seeds whose axis is split over ``mesh``: each device trains its own seeds as a
-    program of its own (:func:`jaxenvs.agents.ppo.parallel.per_device`), and nothing
+    program of its own (:func:`jaxenvs.core.placement.shard_map_lean`), and nothing
     crosses devices. The seed count must be a multiple of the mesh's size."""
     split = PartitionSpec(mesh.axis_names[0])
-    init = per_device(jax.vmap(trainer.init), mesh, (split,), split)
-    chunk = per_device(jax.vmap(trainer.chunk), mesh, (split,), (split, split))
+    init = placement.shard_map_lean(jax.vmap(trainer.init), mesh, (split,), split)
+    chunk = placement.shard_map_lean(jax.vmap(trainer.chunk), mesh, (split,), (split, split))
     return jit(init), jit(chunk)
 
 
