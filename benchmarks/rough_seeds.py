@@ -29,9 +29,11 @@ body's mean velocity over the control step in its heading frame) and
 ``table`` collects the eval files, each run's summary.json, progress.csv and config.yaml
 into one row per run: ``seed``, ``train_seconds`` (the run's wall, compile included),
 ``final_mean_level`` (progress.csv's ``level`` of the last chunk: the mean over the
-training envs), ``levels``, and for ``mjx``, ``mjx_randomized``, ``mujoco_c`` and
-``mujoco_c_randomized`` a dict with ``mid`` and ``top``, each holding ``fell_fraction``,
-``tracking_error_lin`` and ``tracking_error_yaw``.
+training envs), ``first_chunk_mean_level`` (the same of the first chunk), ``levels``,
+``chunks`` of ``num_chunks`` trained and ``finished`` (False for a run stopped early),
+and for ``mjx``, ``mjx_randomized``, ``mujoco_c`` and ``mujoco_c_randomized`` a dict
+with ``mid`` and ``top``, each holding ``fell_fraction``, ``tracking_error_lin`` and
+``tracking_error_yaw``.
 """
 
 from __future__ import annotations
@@ -170,13 +172,13 @@ def eval_file(physics: str) -> str:
     return f"rough_eval_{physics}.json"
 
 
-def final_level(run: Path) -> float:
-    """The mean over seeds of progress.csv's ``level`` in the run's last chunk."""
+def chunk_level(run: Path, first: bool = False) -> float:
+    """The mean over seeds of progress.csv's ``level`` in the run's last (or first) chunk."""
     rows = runner.read_progress(run / runner.PROGRESS_FILE)
     if not rows or "level" not in rows[0]:
         raise SystemExit(f"{run}: progress.csv holds no level (not a curriculum run?)")
-    last = max(int(r["chunk"]) for r in rows)
-    return float(np.mean([float(r["level"]) for r in rows if int(r["chunk"]) == last]))
+    pick = (min if first else max)(int(r["chunk"]) for r in rows)
+    return float(np.mean([float(r["level"]) for r in rows if int(r["chunk"]) == pick]))
 
 
 def row(run_dir: str) -> dict[str, Any]:
@@ -195,11 +197,15 @@ def row(run_dir: str) -> dict[str, Any]:
         "seed": config.train.seed,
         "run": run.name,
         "train_seconds": summary["wall_seconds"],
-        "final_mean_level": round(final_level(run), 4),
+        "final_mean_level": round(chunk_level(run), 4),
+        "first_chunk_mean_level": round(chunk_level(run, first=True), 4),
         "levels": config.env.levels,
         "env_steps": summary["env_steps"],
+        "chunks": summary["chunks"],
+        "num_chunks": summary["num_chunks"],
+        "finished": summary["finished"],
     }
-    if "mjx" in evals:
+    if "mjx" in evals and evals["mjx"]["device"] != "cpu":
         out["gpu"] = evals["mjx"]["device"]
     for field, physics, params in BENCHES:
         if physics in evals:
@@ -223,6 +229,9 @@ def _parser() -> argparse.ArgumentParser:
     tb.add_argument("run_dirs", nargs="+")
     tb.add_argument("--json", metavar="NAME", required=True, help=results_io.HELP)
     tb.add_argument("--machine", default=None, help="where the runs trained and were evaluated")
+    tb.add_argument(
+        "--gpu", default=None, help="the GPU the runs trained on (default: the mjx eval's)"
+    )
     return parser
 
 
@@ -251,7 +260,9 @@ def main(argv: list[str] | None = None) -> None:
         description=args.machine or "training and the mjx eval on the gpu named; C on the CPU",
         engine="mjx: mjx*; MuJoCo C: mujoco_c*",
     )
-    rec["machine"]["gpu"] = sorted({r["gpu"] for r in rows if "gpu" in r})
+    rec["machine"]["gpu"] = (
+        [args.gpu] if args.gpu else sorted({r["gpu"] for r in rows if "gpu" in r})
+    )
     results_io.write(args.json, rec)
     print(json.dumps(rows, indent=2))
 

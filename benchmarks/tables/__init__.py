@@ -16,6 +16,7 @@ from . import (
     export,
     facade,
     main_command,
+    rough,
     scaling,
     soak,
     tabular,
@@ -37,6 +38,7 @@ FAMILIES = (
     export,
     deploy,
     contact,
+    rough,
 )
 
 

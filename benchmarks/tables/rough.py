@@ -1,0 +1,102 @@
+"""Rough ground: HexapodJoystickRough-v0 per seed, its curriculum level and its tracking and
+falls at the terrain's middle and top level on each engine, against the issue's targets."""
+
+from __future__ import annotations
+
+from .common import Cells, Rec, Row, Table, each_row, met, pct
+
+#: (row field, label) of each engine group a row may hold
+BENCHES = (
+    ("mjx", "MJX"),
+    ("mjx_randomized", "MJX, randomised"),
+    ("mujoco_c", "MuJoCo C"),
+    ("mujoco_c_randomized", "C, randomised"),
+)
+#: the targets at the middle level: falls, linear and yaw RMS tracking errors
+MID_FELL, MID_LIN, MID_YAW = 0.05, 0.15, 0.30
+#: the final mean level over the top level's index
+LEVEL_SHARE = 0.6
+
+
+def _figures(g: Row) -> str:
+    return (
+        f"{g['tracking_error_lin']:.3f} / {g['tracking_error_yaw']:.3f} / {pct(g['fell_fraction'])}"
+    )
+
+
+def _mid_met(g: Row) -> bool:
+    return (
+        g["fell_fraction"] <= MID_FELL
+        and g["tracking_error_lin"] <= MID_LIN
+        and g["tracking_error_yaw"] <= MID_YAW
+    )
+
+
+def rough_training(recs: list[Rec]) -> Cells:
+    """Per seed: the train wall and chunks, the mean level in the first and last chunk, and
+    whether the wall (<= 600 s) and the level (>= 0.6 x (levels - 1)) targets are met."""
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        bar = LEVEL_SHARE * (r["levels"] - 1)
+        done = "" if r["finished"] else " (stopped)"
+        return [
+            str(r["seed"]),
+            f"{r['train_seconds']:.1f} s",
+            f"{r['chunks']} / {r['num_chunks']}{done}",
+            f"{r['first_chunk_mean_level']:.2f}",
+            f"{r['final_mean_level']:.2f}",
+            f"{bar:.1f}",
+            met(r["train_seconds"] <= 600 and r["finished"]),
+            met(r["final_mean_level"] >= bar),
+        ]
+
+    head = [
+        "seed",
+        "train wall",
+        "chunks",
+        "mean level, first chunk",
+        "mean level, last chunk",
+        "level target",
+        "whole run <= 600 s",
+        "level target met",
+    ]
+    return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
+
+
+def rough_tracking(recs: list[Rec]) -> Cells:
+    """Per seed and engine group: RMS tracking errors and falls at the middle and the top
+    level, and whether the middle level meets its targets."""
+    (rec,) = recs
+
+    def cells(rb: tuple[Row, str, str]) -> list[str]:
+        r, field, label = rb
+        g = r[field]
+        return [
+            str(r["seed"]),
+            label,
+            _figures(g["mid"]),
+            _figures(g["top"]),
+            met(_mid_met(g["mid"])),
+        ]
+
+    head = [
+        "seed",
+        "engine",
+        "mid: lin m/s / yaw rad/s / fell",
+        "top: lin m/s / yaw rad/s / fell",
+        f"mid within {MID_LIN} m/s, {MID_YAW} rad/s, {pct(MID_FELL)} falls",
+    ]
+    found = [
+        (r, field, label)
+        for r in sorted(rec["rows"], key=lambda r: r["seed"])
+        for field, label in BENCHES
+        if field in r
+    ]
+    return each_row(head, found, cells)
+
+
+TABLES = {
+    "rough-training": Table(("ppo_joystick_rough_seeds_h200",), rough_training),
+    "rough-tracking": Table(("ppo_joystick_rough_seeds_h200",), rough_tracking),
+}
