@@ -6,6 +6,7 @@ from .common import Cells, Rec, Row, Table, one, rate, rows
 
 FILES = ("scaling_h200x2_reacher_walker",)
 GPU_FILES = ("scaling_gpu",)
+GPU4_FILES = ("scaling_gpu4",)
 
 
 def _per_call(r: Row) -> str:
@@ -75,4 +76,5 @@ TABLES = {
     "scaling-env": Table(FILES, scaling_env),
     "scaling-ppo": Table(FILES, scaling_ppo),
     "scaling-gpu": Table(GPU_FILES, scaling_gpu),
+    "scaling-gpu4": Table(GPU4_FILES, scaling_gpu),
 }
