@@ -329,7 +329,7 @@ def test_task_observation_is_a_function_of_readings_from_elsewhere(env_id):
 @pytest.mark.full  # an MJX compile of the walker
 def test_mjx_fills_sensordata_when_asked():
     robot = Hexapod(sensordata=True)
-    sim = robot.make_sim(0.01, 5)
+    sim = robot.make_sim(0.01, 5, scene=robot.scene())  # standing on its floor
     qpos = robot.qpos(jnp.array([0.0, 0.0, 0.14]), jnp.array([1.0, 0.0, 0.0, 0.0]), jnp.zeros(18))
     ctrl = robot.command(jnp.full(18, 0.3))
     out = jax.jit(sim.step)(sim.mx, sim.init_data(qpos=qpos, qvel=jnp.zeros(24)), ctrl)
