@@ -25,7 +25,6 @@ import jaxenvs
 from jaxenvs.config import ConfigError
 from jaxenvs.core import BatchedEnv
 from jaxenvs.run import results
-from jaxenvs.tasks.hexapod import HexapodTask
 from jaxenvs.tasks.hexapod.rough import (
     SCAN_KEYS,
     HexapodJoystickRough,
@@ -189,7 +188,11 @@ def test_falls_are_measured_above_the_ground(env) -> None:
 
         def both(q: jax.Array) -> jax.Array:
             readings = env.robot.sense(one.replace(qpos=q))
-            return jnp.stack([env.fallen(readings), HexapodTask.fallen(env, readings)])
+            c = env.config  # the flat floor's rule: the body's height above z = 0
+            flat = (env.robot.height(readings) < c.min_height) | (
+                env.robot.upright(readings) < c.min_upright
+            )
+            return jnp.stack([env.fallen(readings), flat])
 
         return jax.vmap(both)(qpos)
 

@@ -185,12 +185,17 @@ class HexapodTask(RobotTask, Env[ConfigT], Generic[ConfigT]):
         """The servos' mechanical power during the step that ended in ``data`` (W)."""
         return rewards.servo_power(data.actuator_force, self.robot.joint_vel(readings))
 
+    def height_above_ground(self, pos: jax.Array) -> jax.Array:
+        """The height (m) of a body at world position ``pos`` (3,) above the ground under
+        it: ``pos[2]`` on the flat floor (a task on other ground overrides it)."""
+        return pos[2]
+
     def fallen(self, readings: Readings) -> jax.Array:
-        """The body below ``min_height`` or tilted past ``min_upright``."""
+        """The body below ``min_height`` above the ground or tilted past
+        ``min_upright``."""
         c = self.config
-        return (self.robot.height(readings) < c.min_height) | (
-            self.robot.upright(readings) < c.min_upright
-        )
+        above = self.height_above_ground(readings["torso_pos"])
+        return (above < c.min_height) | (self.robot.upright(readings) < c.min_upright)
 
     def _terminated(self, data: mjx.Data, extras: Any, params: Any) -> jax.Array:
         """Fallen (:meth:`fallen`)."""

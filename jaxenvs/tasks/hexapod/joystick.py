@@ -465,6 +465,6 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
             "vel_forward": vel[0],
             "vel_lateral": vel[1],
             "yaw_rate": vel[2],
-            "height": data.qpos[2],
+            "height": self.height_above_ground(data.qpos[:3]),
         }
         return reward, metrics

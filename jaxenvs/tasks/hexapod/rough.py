@@ -63,7 +63,6 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import State
-from jaxenvs.robots.base import Readings
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, generate
 from jaxenvs.tasks.hexapod.joystick import (
@@ -315,13 +314,10 @@ class HexapodJoystickRough(HexapodJoystick):
         """The terrain's height (m) at world points ``xy`` (``..., 2``)."""
         return height(self.field, xy)
 
-    def fallen(self, readings: Readings) -> jax.Array:
-        """The body below ``min_height`` above the ground under it, or tilted past
-        ``min_upright``."""
-        c = self.config
-        pos = readings["torso_pos"]
-        above = pos[2] - self.ground(pos[:2])
-        return (above < c.min_height) | (self.robot.upright(readings) < c.min_upright)
+    def height_above_ground(self, pos: jax.Array) -> jax.Array:
+        """The height (m) of a body at ``pos`` above the terrain under it (the fall rule
+        and the ``height`` metric read it)."""
+        return pos[2] - self.ground(pos[:2])
 
     def _reward(
         self,
@@ -331,12 +327,11 @@ class HexapodJoystickRough(HexapodJoystick):
         extras: JoystickExtras,
         params: JoystickParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
-        """The joystick's reward; its ``height`` metric above the ground, ``level`` and
-        the height scan (:data:`SCAN_KEYS`)."""
+        """The joystick's reward and metrics (its ``height`` above the ground), with
+        ``level`` and the height scan (:data:`SCAN_KEYS`)."""
         assert isinstance(extras, RoughExtras)
         reward, metrics = super()._reward(prev, data, action, extras, params)
         pos = data.qpos[:3]
-        metrics["height"] = pos[2] - self.ground(pos[:2])
         metrics["level"] = extras.level.astype(jnp.float32)
         scan = height_scan(self.field, pos, heading(data.qpos[3:7]), SCAN_OFFSETS)
         scan = jnp.clip(scan, -1.0, 1.0)
