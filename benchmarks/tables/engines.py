@@ -85,7 +85,24 @@ def _compile(found: list[Row]) -> str:
 
 
 def engines_cpu16(recs: list[Rec]) -> Cells:
+    """The 16-core sweep: CartPole and the reacher, the walker, then the walker's MJX on
+    one XLA device."""
     cr, walker, one_dev = recs
+    cells = cpu16_rows([cr, walker])
+    r = one(one_dev, name="jaxenvs")
+    cells.append(
+        [
+            f"{r['task']}, MJX on one XLA device",
+            f"{r['num_envs']:,}",
+            f"{rate(r['env_steps_per_s'])} ({_compile([r])})",
+            *[""] * 4,
+        ]
+    )
+    return cells
+
+
+def cpu16_rows(recs: list[Rec]) -> Cells:
+    """Each task of ``recs`` under MJX and C beside `mujoco.rollout`, 16 cores."""
     cells = [
         [
             "task",
@@ -97,7 +114,7 @@ def engines_cpu16(recs: list[Rec]) -> Cells:
             "C / rollout",
         ]
     ]
-    for rec, task, mjx, c in by_engine((cr, walker)):
+    for rec, task, mjx, c in by_engine(tuple(recs)):
         roll = one_sps(rec, task=task, name="mujoco.rollout")
         cells.append(
             [
@@ -110,15 +127,6 @@ def engines_cpu16(recs: list[Rec]) -> Cells:
                 ratio(best_sps(c), roll),
             ]
         )
-    r = one(one_dev, name="jaxenvs")
-    cells.append(
-        [
-            f"{r['task']}, MJX on one XLA device",
-            f"{r['num_envs']:,}",
-            f"{rate(r['env_steps_per_s'])} ({_compile([r])})",
-            *[""] * 4,
-        ]
-    )
     return cells
 
 
@@ -172,4 +180,5 @@ TABLES = {
     "engines-cpu2-targets": Table(ENGINES_CPU2, engines_cpu2_targets),
     "engines-cpu16": Table(ENGINES_CPU16, engines_cpu16),
     "engines-cpu16-targets": Table(ENGINES_CPU16, engines_cpu16_targets),
+    "engines-cpu16-per-device": Table(("engines_cpu16_cartpole_reacher_per_device",), cpu16_rows),
 }
