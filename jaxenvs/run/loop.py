@@ -39,12 +39,12 @@ from jaxenvs.run.results import (
     format_value,
     metric_columns,
     plot_curves,
+    plotting,
     progress_postfix,
     read_progress,
     summarize,
     task_level,
     write_json,
-    write_policy_video,
     write_progress,
 )
 from jaxenvs.run.run_config import (
@@ -58,6 +58,7 @@ from jaxenvs.run.run_config import (
     engine_resolved,
     seed_keys,
 )
+from jaxenvs.run.video import PolicyVideo
 
 PyTree = Any
 
@@ -250,14 +251,20 @@ def _run_chunk(run: _Run, clock: _Clock, rs: RunState) -> tuple[RunState, Any, f
     return nxt, metrics, seconds
 
 
-def _finish(run: _Run, clock: _Clock, rs: RunState, interrupted: bool) -> dict[str, Any]:
-    """The final evaluation, summary.json, the learning curve and (unless interrupted)
-    the video of the best seed; returns the summary."""
+def _finish(
+    run: _Run, clock: _Clock, rs: RunState, interrupted: bool, video: PolicyVideo | None
+) -> dict[str, Any]:
+    """The final evaluation, summary.json, the learning curve and (when ``video`` is
+    given) the video of the best seed, drawn on its worker while the summary and the
+    curve are written; returns the summary."""
     train_cfg, out = run.resolved.train, run.out
     wall = clock.wall()
     result = run.programs.evaluate(run.params_fn(rs.state), eval_key(train_cfg.seed))
     returns, trajectory, lengths = jax.device_get(result)
     returns = np.asarray(returns)
+    if video is not None:
+        best = int(np.argmax(returns.mean(axis=1)))
+        video.draw(jax.tree.map(lambda x: x[best], trajectory), int(lengths[best]))
     summary = summarize(
         rs.rows, returns, rs.top, wall, rs.chunk, run.trainer.num_chunks, rs.finished
     )
@@ -270,10 +277,8 @@ def _finish(run: _Run, clock: _Clock, rs: RunState, interrupted: bool) -> dict[s
         plot_curves([out], out / CURVE_FILE)
     except Exception as err:  # noqa: BLE001 - a plot must never lose the results
         run.say(f"no learning curve: {err}")
-    if train_cfg.video and not interrupted:
-        best = int(np.argmax(returns.mean(axis=1)))
-        traj = jax.tree.map(lambda x: x[best], trajectory)
-        write_policy_video(run.programs.env, traj, int(lengths[best]), out / VIDEO_FILE, run.say)
+    if video is not None:
+        video.wait()
     return summary
 
 
@@ -350,6 +355,9 @@ def _loop(
         num_chunks * steps, rs.chunk * steps, quiet, f"{resolved.algo} {resolved.env_id}"
     )
     interrupted = False
+    # the plotting library and the video's renderer are made ready while the chunks run
+    threading.Thread(target=plotting, name="import-plotting", daemon=True).start()
+    video = PolicyVideo(run.programs.env, out / VIDEO_FILE, say) if resolved.train.video else None
     # A first Ctrl-C only asks to stop after the running chunk is committed. A second
     # one (KeyboardInterrupt inside _run_chunk) discards the chunk in flight: ``rs``
     # stays the previous chunk's, which is exactly what the checkpoint on disk holds.
@@ -364,12 +372,19 @@ def _loop(
         write_progress(out / PROGRESS_FILE, run.columns, rs.rows)
     finally:
         bar.close()
+        if video is not None and (interrupted or sys.exc_info()[0] is not None):
+            video.cancel()
+            video = None
     if interrupted:
         say(
             f"interrupted: results and checkpoint are of chunk {rs.chunk}/{num_chunks}; "
             f"continue with: jaxenvs train --resume {out}"
         )
-    summary = _finish(run, clock, rs, interrupted)
+    try:
+        summary = _finish(run, clock, rs, interrupted, video)
+    finally:
+        if video is not None:  # a no-op once the video is written; else frees the worker
+            video.cancel()
     if interrupted:
         raise KeyboardInterrupt
     return summary

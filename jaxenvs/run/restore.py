@@ -29,7 +29,6 @@ from jaxenvs.core import Env
 from jaxenvs.core.xla import jit
 from jaxenvs.run import checkpoint
 from jaxenvs.run.evaluation import eval_key, make_evaluator
-from jaxenvs.run.results import write_policy_video
 from jaxenvs.run.run_config import (
     CHECKPOINT_FILE,
     SUMMARY_FILE,
@@ -40,6 +39,7 @@ from jaxenvs.run.run_config import (
     seed_keys,
     with_physics,
 )
+from jaxenvs.run.video import write_policy_video
 
 PyTree = Any
 #: a run directory's greedy policy alone (:func:`save_policy`)

@@ -1,4 +1,5 @@
-"""A run's results: progress.csv, the progress bar, summary.json, plots and the video.
+"""A run's results: progress.csv, the progress bar, summary.json and plots (the video is
+:mod:`jaxenvs.run.video`'s).
 
 Everything here reads or writes the files of a run directory (names in
 :mod:`jaxenvs.run.run_config`) or shows a run's figures; nothing runs training.
@@ -7,11 +8,10 @@ Everything here reads or writes the files of a run directory (names in
 from __future__ import annotations
 
 import csv
-import importlib
 import json
 import math
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +21,9 @@ import yaml
 
 from jaxenvs import files
 from jaxenvs.agents.base import CHUNK_METRICS
-from jaxenvs.core import Env, State
+from jaxenvs.core import State
 from jaxenvs.run.run_config import CONFIG_FILE, PROGRESS_FILE
 
-#: the end-of-run video: frames per simulated second (at most) and (width, height)
-VIDEO_FPS, VIDEO_SIZE = 25.0, (640, 480)
 #: the task metric of a curriculum's level (``info["level"]``, per env): a run of a task
 #: that reports it gets each chunk's mean level in progress.csv, the bar and the plot
 LEVEL = "level"
@@ -176,32 +174,6 @@ def summarize(
     }
 
 
-def write_policy_video(
-    env: Env, trajectory: Any, length: int, path: Path, say: Callable[[str], None]
-) -> Path | None:
-    """Render one episode (stacked States, reset state first) with :mod:`jaxenvs.render`.
-
-    Rendering is optional: when :mod:`jaxenvs.render` is missing or fails (no GL backend,
-    no ffmpeg), ``say`` gets a one-line notice and ``None`` is returned.
-    """
-    try:
-        render = importlib.import_module("jaxenvs.render")
-    except ImportError as err:
-        say(f"no video: rendering is not available ({err})")
-        return None
-    try:
-        # at most VIDEO_FPS frames a second of simulated time
-        stride = max(1, round(1.0 / (env.control_dt * VIDEO_FPS)))
-        states = jax.tree.map(lambda x: np.asarray(x)[: length + 1 : stride], trajectory)
-        width, height = VIDEO_SIZE
-        frames = render.iter_frames(env, states, width=width, height=height)
-        render.write_video(frames, path, fps=1.0 / (env.control_dt * stride))
-    except Exception as err:  # noqa: BLE001 - the video is optional
-        say(f"no video: {str(err).splitlines()[0] if str(err) else type(err).__name__}")
-        return None
-    return path
-
-
 # ------------------------------------------------------------------------------ plots
 def learning_curve(
     run_dir: str | Path, column: str = "mean_return"
@@ -227,14 +199,23 @@ def learning_curve(
     return steps, ret
 
 
-def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None = None) -> Path:
-    """Return vs env steps of each run: every seed thin, the mean bold, min-max shaded;
-    a run with a curriculum adds its mean :data:`LEVEL` (over seeds), dashed, on a second
-    axis."""
+def plotting() -> Any:
+    """``matplotlib.pyplot`` on its file-only Agg backend (what :func:`plot_curves`
+    draws with), imported on first use; a run calls it on a thread of its own while the
+    chunks run, so that the curve at the end does not wait for the import."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None = None) -> Path:
+    """Return vs env steps of each run: every seed thin, the mean bold, min-max shaded;
+    a run with a curriculum adds its mean :data:`LEVEL` (over seeds), dashed, on a second
+    axis."""
+    plt = plotting()
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     levels = None

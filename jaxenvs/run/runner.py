@@ -41,14 +41,7 @@ from jaxenvs.run.restore import (
     restore_policy,
     save_policy,
 )
-from jaxenvs.run.results import (
-    VIDEO_FPS,
-    VIDEO_SIZE,
-    learning_curve,
-    plot_curves,
-    read_progress,
-    write_policy_video,
-)
+from jaxenvs.run.results import learning_curve, plot_curves, read_progress
 from jaxenvs.run.run_config import (
     ALGORITHMS,
     CHECKPOINT_FILE,
@@ -70,6 +63,7 @@ from jaxenvs.run.run_config import (
     shipped_config,
     with_physics,
 )
+from jaxenvs.run.video import VIDEO_FPS, VIDEO_SIZE, write_policy_video
 
 __all__ = [
     "ALGORITHMS",
