@@ -34,7 +34,20 @@ import tempfile
 from pathlib import Path
 
 import results_io
-from c_engine_costs import MEMORY_PREAMBLE
+
+#: each run's first lines: the compile cache, mjx and jaxenvs imported, the peak there
+MEMORY_PREAMBLE = """
+import json, resource, jax, jax.numpy as jnp
+jax.config.update("jax_compilation_cache_dir", {cache!r})
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+import contextlib, io
+with contextlib.redirect_stdout(io.StringIO()):
+    from mujoco import mjx
+import jaxenvs
+def peak():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB
+base = peak()
+"""
 
 _RUN = (
     MEMORY_PREAMBLE
