@@ -30,6 +30,7 @@ from jaxenvs.tasks.hexapod.rough import (
     HexapodJoystickRough,
     JoystickRoughConfig,
     RoughCarry,
+    contact_solver,
 )
 
 ID = "HexapodJoystickRough-v0"
@@ -71,20 +72,39 @@ def starts(env: HexapodJoystickRough, levels: Any, columns: Any, seed: int = 0) 
 
 def test_the_terrain_is_the_ground_with_the_rough_contact_setting(env) -> None:
     """The feet are paired with the terrain's heightfield; the rough task's own cone and
-    solver (elliptic, 30 / 10), while the flat joystick keeps its pyramidal 6 / 3."""
+    solver (elliptic; under C Newton 4 / 6, for MJX on a CPU CG 30 / 10), while the flat
+    joystick keeps its pyramidal CG 6 / 3."""
     m = env.sim.mj_model
     assert m.nhfield == 1 and m.npair == 6
     hfield = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "terrain")
     assert set(m.pair_geom1) == {hfield}
+    newton = (mujoco.mjtSolver.mjSOL_NEWTON, 4, 6)
     for model in (m, env.sim.physics_mj_model):
         assert model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
-        assert (model.opt.iterations, model.opt.ls_iterations) == (30, 10)
+        assert (model.opt.solver, model.opt.iterations, model.opt.ls_iterations) == newton
+    mjx_cpu = HexapodJoystickRough(dataclasses.replace(env.config, physics="mjx")).sim.mj_model
+    cg = (mujoco.mjtSolver.mjSOL_CG, 30, 10)
+    assert (mjx_cpu.opt.solver, mjx_cpu.opt.iterations, mjx_cpu.opt.ls_iterations) == cg
     flat = jaxenvs.make("HexapodJoystick-v0", physics="c")
     assert flat.sim.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
     assert (flat.sim.mj_model.opt.iterations, flat.sim.mj_model.opt.ls_iterations) == (6, 3)
     assert flat.sim.mj_model.nhfield == 0
     pyramid = HexapodJoystickRough(dataclasses.replace(env.config, cone="pyramidal"))
     assert pyramid.sim.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
+
+
+@pytest.mark.parametrize(
+    ("solver", "physics", "backend", "chosen"),
+    [
+        ("auto", "c", "cpu", "newton"),
+        ("auto", "mjx", "gpu", "newton"),
+        ("auto", "mjx", "cpu", "cg"),
+        ("cg", "c", "cpu", "cg"),
+        ("newton", "mjx", "cpu", "newton"),
+    ],
+)
+def test_contact_solver_is_newton_but_for_mjx_on_a_cpu(solver, physics, backend, chosen) -> None:
+    assert contact_solver(solver, physics, backend) == chosen
 
 
 def test_first_levels_and_columns(env) -> None:

@@ -40,11 +40,15 @@ curriculum; a blind policy and a privileged critic.
   +-1 m. PPO's ``critic_info`` takes scalar ``info`` entries, so the scan is 49 of them.
 * **Metrics.** The joystick's, plus ``level`` (the env's level; the run loop reports its
   mean per chunk in progress.csv, the progress bar and the learning curve) and the scan.
-* **Contact.** The elliptic friction cone (``cone``) and a converged CG solve
-  (``solver_iterations`` 30, ``ls_iterations`` 10): the setting docs/terrain.md measured
-  heading-independent and stable on the heightfield, where the flat tasks' few iterations
-  diverge. Only the feet collide with the ground (the torso and shins pass through it; a
-  body that sinks below ``min_height`` above the ground has fallen).
+* **Contact.** The elliptic friction cone (``cone``) and a converged solve, the settings
+  docs/terrain.md measured heading-independent and stable on the heightfield, where the
+  flat tasks' few CG iterations diverge: Newton's method (4 iterations, 6 line-search
+  steps: 1.14x a flat step's cost under MuJoCo C) under MuJoCo C and MJX on an
+  accelerator, and CG (``solver_iterations`` 30, ``ls_iterations`` 10: 2.0x) for MJX on a
+  CPU, where MJX's Newton calls LAPACK's batched Cholesky, which stalls XLA's CPU thread
+  pool (``solver``; both converge to the same contact forces). Only the feet collide
+  with the ground (the torso and shins pass through it; a body that sinks below
+  ``min_height`` above the ground has fallen).
 * **Episode.** 400 control steps (20 s, legged_gym's episode), four commands.
 """
 
@@ -63,8 +67,10 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import State
+from jaxenvs.physics import resolve_engine
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, generate
+from jaxenvs.tasks.hexapod.base import solver_edit
 from jaxenvs.tasks.hexapod.joystick import (
     HexapodJoystick,
     JoystickConfig,
@@ -79,6 +85,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CONES",
     "SCAN_KEYS",
+    "SOLVERS",
     "SCAN_OFFSETS",
     "HexapodJoystickRough",
     "JoystickRoughConfig",
@@ -89,6 +96,8 @@ __all__ = [
 
 #: the friction cones a config may name
 CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
+#: the contact solvers a config may name (``"auto"``: :func:`contact_solver`)
+SOLVERS = ("auto", "newton", "cg")
 #: the critic's height scan: a 7 x 7 grid, 7 cm apart, in the body's heading frame
 SCAN_OFFSETS = scan_grid(7, 7, 0.07)
 #: the scan's metric keys, one per point of :data:`SCAN_OFFSETS`
@@ -105,7 +114,11 @@ class JoystickRoughConfig(JoystickConfig):
 
     Attributes:
       episode_length: 400 control steps (20 s).
-      solver_iterations, ls_iterations: a converged CG solve (30 and 10).
+      solver: the contact solver, ``"newton"``, ``"cg"`` or ``"auto"`` (Newton, but CG for
+        MJX on a CPU: :func:`contact_solver`).
+      solver_iterations, ls_iterations: the CG solve's iterations and line-search steps
+        (30 and 10: converged).
+      newton_iterations, newton_ls_iterations: Newton's (4 and 6: converged).
       cone: the friction cone, ``"elliptic"`` (heading-independent) or ``"pyramidal"``.
       levels: difficulty levels of the terrain (rows of tiles).
       terrain_types: the terrain type of each column of tiles
@@ -122,8 +135,11 @@ class JoystickRoughConfig(JoystickConfig):
     """
 
     episode_length: int = 400
+    solver: str = "auto"
     solver_iterations: int = 30
     ls_iterations: int = 10
+    newton_iterations: int = 4
+    newton_ls_iterations: int = 6
     cone: str = "elliptic"
     levels: int = 10
     terrain_types: tuple[str, ...] = TYPES
@@ -150,6 +166,9 @@ class JoystickRoughConfig(JoystickConfig):
     def validate(self) -> None:
         super().validate()
         require(self.cone in CONES, "cone", f"must be one of {', '.join(CONES)}")
+        require(self.solver in SOLVERS, "solver", f"must be one of {', '.join(SOLVERS)}")
+        require(self.newton_iterations >= 1, "newton_iterations", "must be >= 1")
+        require(self.newton_ls_iterations >= 1, "newton_ls_iterations", "must be >= 1")
         require(self.levels >= 1, "levels", "must be >= 1")
         unknown = sorted(set(self.terrain_types) - set(TYPES))
         require(bool(self.terrain_types) and not unknown, "terrain_types", f"unknown {unknown}")
@@ -165,6 +184,17 @@ class JoystickRoughConfig(JoystickConfig):
         foreign = sorted(set(self.spawn_types) - set(self.terrain_types))
         require(not foreign, "spawn_types", f"{foreign} not among terrain_types")
         require(self.promote_fraction > 0, "promote_fraction", "must be > 0")
+
+
+def contact_solver(solver: str, physics: str, backend: str | None = None) -> str:
+    """The solver ``solver`` means for an env stepped by ``physics`` (``"mjx"`` or ``"c"``)
+    on ``backend`` (default: JAX's): itself, or for ``"auto"`` ``"newton"``, but ``"cg"``
+    for MJX on a CPU (MJX's Newton calls LAPACK's batched Cholesky there, which stalls
+    XLA's CPU thread pool at batches of 128 or more: benchmarks/NOTES.md)."""
+    if solver != "auto":
+        return solver
+    on_cpu = (backend or jax.default_backend()) == "cpu"
+    return "cg" if physics == "mjx" and on_cpu else "newton"
 
 
 @functools.lru_cache(maxsize=4)
@@ -223,15 +253,22 @@ class HexapodJoystickRough(HexapodJoystick):
         self._spawn_columns = jnp.asarray(allowed, jnp.int32)
 
     def model_edit(self, config: JoystickConfig) -> Callable[[mujoco.MjModel], None]:
-        """The joystick's solver settings and the config's friction cone; a brighter
-        headlight (drawing only: the scene's one light is above the world's origin, and
-        most tiles are metres away)."""
-        solver = super().model_edit(config)
+        """The config's contact solver (:func:`contact_solver`, for the engine the config
+        asks for) and friction cone; a brighter headlight (drawing only: the scene's one
+        light is above the world's origin, and most tiles are metres away)."""
         assert isinstance(config, JoystickRoughConfig)
         cone = CONES[config.cone]
+        physics = resolve_engine(type(self), getattr(config, "physics", "auto"))
+        if contact_solver(config.solver, physics) == "newton":
+            solver = mujoco.mjtSolver.mjSOL_NEWTON
+            solve = solver_edit(config.newton_iterations, config.newton_ls_iterations)
+        else:
+            solver = mujoco.mjtSolver.mjSOL_CG
+            solve = solver_edit(config.solver_iterations, config.ls_iterations)
 
         def edit(model: mujoco.MjModel) -> None:
-            solver(model)
+            solve(model)
+            model.opt.solver = solver
             model.opt.cone = cone
             model.vis.headlight.ambient[:] = 0.35
             model.vis.headlight.diffuse[:] = 0.55
