@@ -360,6 +360,8 @@ TABLES = {
     "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
     "walker-waypoints": Table(("ppo_walker_waypoints_h200",), walker_waypoints),
     "walker-waypoints-before": Table(("ppo_walker_waypoints_h100",), walker_waypoints),
+    "walker-waypoints-gpus2": Table(("ppo_walker_waypoints_gpus2_h200",), walker_waypoints),
+    "walker-waypoints-gpus1": Table(("ppo_walker_waypoints_gpus1_h200",), walker_waypoints),
     "walker-variants": Table(("ppo_walker_variants_h200",), walker_variants),
     "walker-eval-wide": Table(("walker_waypoints_wide",), walker_eval_wide),
     "joystick-variants": Table(("ppo_joystick_variants_h200",), joystick_variants),
