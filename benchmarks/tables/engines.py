@@ -10,6 +10,7 @@ from .common import (
     best,
     best_sps,
     by_engine,
+    each_row,
     first_calls,
     maybe,
     met,
@@ -164,6 +165,26 @@ def engines_cpu16_targets(recs: list[Rec]) -> Cells:
     return cells
 
 
+def terrain_throughput(recs: list[Rec]) -> Cells:
+    """The rough joystick's env steps/s over the flat joystick's, per batch and solver."""
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        solver = r.get("solver", "auto (the config's)") if r["variant"] != "flat" else "-"
+        return [
+            r["task"],
+            solver,
+            r["physics"],
+            f"{r['num_envs']:,}",
+            rate(r["env_steps_per_s"]),
+            f"**{r['x_flat']:.2f}x**",
+            secs(r["first_call_s"]),
+        ]
+
+    head = ["task", "rough solver", "engine", "envs", "env steps/s", "x flat", "first call"]
+    return each_row(head, rec["rows"], cells)
+
+
 ENGINES_CPU2 = (
     "engines_cpu2_cartpole_reacher",
     "engines_cpu2_walker",
@@ -180,5 +201,6 @@ TABLES = {
     "engines-cpu2-targets": Table(ENGINES_CPU2, engines_cpu2_targets),
     "engines-cpu16": Table(ENGINES_CPU16, engines_cpu16),
     "engines-cpu16-targets": Table(ENGINES_CPU16, engines_cpu16_targets),
+    "terrain-throughput-cpu2": Table(("terrain_throughput_cpu2",), terrain_throughput),
     "engines-cpu16-per-device": Table(("engines_cpu16_cartpole_reacher_per_device",), cpu16_rows),
 }
