@@ -31,4 +31,5 @@ def facade(recs: list[Rec]) -> Cells:
 TABLES = {
     "facade-c": Table(("facade_cpu2_reacher_c",), facade),
     "facade-native": Table(("facade_cpu2_native",), facade),
+    "facade-single-idle": Table(("facade_cpu2_single_idle",), facade),
 }
