@@ -46,8 +46,8 @@ curriculum; a blind policy and a privileged critic.
   steps) under MuJoCo C and MJX on an accelerator, and CG (``solver_iterations`` 30,
   ``ls_iterations`` 10) for MJX on a CPU, where MJX's Newton calls LAPACK's batched
   Cholesky, which stalls XLA's CPU thread pool (``solver``; both converge to the same
-  contact forces). Only the feet collide with the ground (the torso and shins pass through it; a body that sinks below
-  ``min_height`` above the ground has fallen).
+  contact forces). Only the feet collide with the ground (the torso and shins pass
+  through it; a body that sinks below ``min_height`` above the ground has fallen).
 * **Episode.** 400 control steps (20 s, legged_gym's episode), four commands.
 """
 
