@@ -1,8 +1,10 @@
-"""The HexapodJoystick-v0 policy driven through the simulated robot's link, by a script.
+"""A joystick policy driven through the simulated robot's link, by a script.
 
 Exports a trained run (``jaxenvs export RUN --format onnx``) and runs ``jaxenvs deploy
 POLICY --env HexapodJoystick-v0 --robot sim --seconds 60 --command SCRIPT`` with the link's
-``--latency-ms``, ``--jitter-ms`` and ``--noise`` of each ``--link`` (the first
+``--latency-ms``, ``--jitter-ms`` and ``--noise`` of each ``--link`` (``--env
+HexapodJoystickRough-v0 --terrain LEVEL[:TYPE]``: the rough policy, the simulated robot on a
+tile of that level) (the first
 ``--repeats`` times, the others once; by default 30 +- 10 ms with noise 1, then the ideal
 link: no delay, no noise, the reference of the same script). :data:`SCRIPT`: forward,
 turning on the spot, sideways, standing, 15 s each. The tracking errors are the loop
@@ -14,9 +16,10 @@ ground truth (body-frame mean velocity over each control period, as the task's
 A run passes when the robot did not fall (the task's termination) and both errors are
 within :data:`TOLERANCE` times the policy's figures in simulation (``--reference
 NAME:SEED:BENCH``: a result file's row of the exported seed, e.g.
-``ppo_joystick_seeds_h200:0:mujoco_c``; by default seed 0 of
-``ppo_joystick_seeds_gap_h100``, the link variant: 20 s episodes, commands redrawn over
-the full range, the run's action delays and sensor biases drawn per env). The exported
+``ppo_joystick_seeds_h200:0:mujoco_c``, or ``...:mujoco_c.mid`` for a group within it;
+by default seed 0 of ``ppo_joystick_seeds_gap_h100``, the link variant: 20 s episodes,
+commands redrawn over the full range, the run's action delays and sensor biases drawn per
+env). The exported
 seed is the run's best (a one-seed run: its only one), so name that seed. One row
 per run (with its link settings), and one median row per link setting. ``--gif`` draws
 the first run from its log (``/robot/state``, every ``--every`` control steps).
@@ -69,7 +72,9 @@ def reference(ref: tuple[str, int, str] = REFERENCE) -> dict[str, float]:
     """The policy's tracking errors in simulation (``ref``: result file, seed, bench)."""
     name, seed, bench = ref
     rec = json.loads((results_io.RESULTS_DIR / f"{name}.json").read_text())
-    row = next(r for r in rec["rows"] if r["seed"] == seed)[bench]
+    row = next(r for r in rec["rows"] if r["seed"] == seed)
+    for key in bench.split("."):  # a group within a bench: mujoco_c.mid
+        row = row[key]
     return {"lin": row["tracking_error_lin"], "yaw": row["tracking_error_yaw"]}
 
 
@@ -93,13 +98,15 @@ def deploy(
     """One deploy run's row: its link settings, the summary's figures and the verdict."""
     summary = work / "summary.json"
     flags = [x for k, v in link.items() for x in (f"--{k.replace('_', '-')}", f"{v:g}")]
+    if args.terrain:
+        flags += ["--terrain", args.terrain]
     if log is not None:
         flags += ["--log", str(log)]
     out = _jaxenvs(
         "deploy",
         str(policy),
         "--env",
-        ENV_ID,
+        args.env,
         "--robot",
         "sim",
         "--seconds",
@@ -114,7 +121,9 @@ def deploy(
     print(out.strip().splitlines()[-1], flush=True)
     s = json.loads(summary.read_text())
     ref = reference(args.reference)
-    row: dict[str, Any] = {"env_id": ENV_ID, **link, "seconds": s["seconds"]}
+    row: dict[str, Any] = {"env_id": args.env, **link, "seconds": s["seconds"]}
+    if args.terrain:
+        row["terrain"] = args.terrain
     row.update({k: s[k] for k in NUMBERS if k in s})
     row["lin_rms"] = s["tracking_error_rms"]["lin"]  # over the steps before any error
     row["yaw_rms"] = s["tracking_error_rms"]["yaw"]
@@ -133,7 +142,7 @@ def deploy(
 def median_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The median of each number over ``rows`` (one link setting), falls, all passed."""
     keys = ("latency_ms", "jitter_ms", "noise")
-    out: dict[str, Any] = {"env_id": ENV_ID, **{k: rows[0][k] for k in keys}}
+    out: dict[str, Any] = {"env_id": rows[0]["env_id"], **{k: rows[0][k] for k in keys}}
     out["median_of"] = len(rows)
     for k in NUMBERS:
         out[k] = float(np.median([r[k] for r in rows]))
@@ -176,7 +185,9 @@ def _reference(text: str) -> tuple[str, int, str]:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--run", required=True, help="a trained HexapodJoystick-v0 run directory")
+    p.add_argument("--run", required=True, help="a trained joystick run directory")
+    p.add_argument("--env", default=ENV_ID, help="its task (default: %(default)s)")
+    p.add_argument("--terrain", metavar="LEVEL[:TYPE]", help="a terrain task's tile (sim robot)")
     p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument(
         "--link",
@@ -223,7 +234,8 @@ def main() -> None:
         ref = reference(args.reference)
         rec = results_io.record(
             args.json,
-            f"{ENV_ID}: jaxenvs deploy through the simulated robot, a 60 s command script, 2 cores",
+            f"{args.env}: jaxenvs deploy through the simulated robot, a 60 s command script, "
+            "2 cores",
             rows + medians,
             description="the shared 2-core development machine (other users' jobs running)",
             engine="c",

@@ -13,6 +13,7 @@ import tempfile
 from typing import Any
 
 from jaxenvs.cli import checks
+from jaxenvs.cli.robot_cmd import terrain_overrides
 
 HELP = "run an exported policy on a robot (tcp://HOST:PORT, or sim) at the control rate"
 
@@ -30,6 +31,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--latency-ms", type=float, default=0.0, help="sim: message delay")
     parser.add_argument("--jitter-ms", type=float, default=0.0, help="sim: extra uniform delay")
     parser.add_argument("--noise", type=float, default=0.0, help="sim: sensor noise std scale")
+    parser.add_argument(
+        "--terrain",
+        metavar="LEVEL[:TYPE]",
+        help="sim, a terrain task: the robot starts on a tile of this level (jaxenvs robot)",
+    )
     parser.add_argument("--summary", metavar="FILE", help="write the JSON summary here")
     parser.add_argument("--log", metavar="FILE", help="record sensors and commands (MCAP)")
     parser.add_argument(
@@ -83,6 +89,8 @@ def _start_sim(args: argparse.Namespace) -> subprocess.Popen[str]:
     ]
     if args.key_file:
         cmd += ["--key-file", args.key_file]
+    if args.terrain:
+        cmd += ["--terrain", args.terrain]
     errors = tempfile.TemporaryFile("w+")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errors, text=True)
     proc.errors = errors  # type: ignore[attr-defined]
@@ -127,8 +135,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.robot != "sim":
         simrobot.parse_address(args.robot)
-        if args.latency_ms or args.jitter_ms or args.noise:
-            raise ValueError("--latency-ms, --jitter-ms and --noise set up --robot sim")
+        if args.latency_ms or args.jitter_ms or args.noise or args.terrain:
+            raise ValueError("--latency-ms, --jitter-ms, --noise and --terrain set up --robot sim")
+    terrain_overrides(args.env, args.terrain)  # a bad --terrain is refused before the robot starts
     key = auth.read_key(args.key_file) if args.key_file else None
     policy = loop.HostPolicy(args.policy)
     if policy.metadata["env_id"] != args.env:

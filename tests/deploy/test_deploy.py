@@ -388,3 +388,31 @@ def test_log_of_a_killed_writer_is_readable_up_to_its_last_chunk(tmp_path):
     finished = read_log(path)
     assert [m["step"] for m in finished["/deploy/command"]] == list(range(n))
     assert finished["/robot/hello"] == [{"env_id": "CartPole-v0"}]
+
+
+@pytest.mark.parametrize(
+    ("env_id", "robot", "terrain", "message"),
+    [
+        ("CartPole-v0", "sim", "3", "--terrain: CartPole-v0 has no terrain"),
+        ("HexapodJoystickRough-v0", "sim", "12", "--terrain: the level must be 0..9, got '12'"),
+        (
+            "HexapodJoystickRough-v0",
+            "tcp://127.0.0.1:9",
+            "3",
+            "--latency-ms, --jitter-ms, --noise and --terrain set up --robot sim",
+        ),
+    ],
+)
+def test_deploy_refuses_a_terrain_it_cannot_set_up(tmp_path, env_id, robot, terrain, message):
+    """``--terrain`` starts the simulated robot on a tile; it is refused, before any robot
+    starts, for a task without a terrain, a level it does not have, or a real robot."""
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxenvs", "deploy", str(_pd_policy(tmp_path / "pd.npz"))]
+        + ["--env", env_id, "--robot", robot, "--seconds", "1", "--terrain", terrain],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip() == f"jaxenvs deploy: error: {message}"
