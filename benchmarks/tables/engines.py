@@ -202,5 +202,6 @@ TABLES = {
     "engines-cpu16": Table(ENGINES_CPU16, engines_cpu16),
     "engines-cpu16-targets": Table(ENGINES_CPU16, engines_cpu16_targets),
     "terrain-throughput-cpu2": Table(("terrain_throughput_cpu2",), terrain_throughput),
+    "terrain-throughput-h200": Table(("terrain_throughput_h200",), terrain_throughput),
     "engines-cpu16-per-device": Table(("engines_cpu16_cartpole_reacher_per_device",), cpu16_rows),
 }

@@ -99,4 +99,6 @@ def rough_tracking(recs: list[Rec]) -> Cells:
 TABLES = {
     "rough-training": Table(("ppo_joystick_rough_seeds_h200",), rough_training),
     "rough-tracking": Table(("ppo_joystick_rough_seeds_h200",), rough_tracking),
+    "rough-training-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_training),
+    "rough-tracking-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_tracking),
 }
