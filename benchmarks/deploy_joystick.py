@@ -151,7 +151,7 @@ def median_row(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def draw(log: Path, gif: Path, every: int) -> None:
+def draw(log: Path, gif: Path, every: int, env_id: str = ENV_ID) -> None:
     """A GIF of a deploy log's ground truth, every ``every`` control steps; the red marker
     sits where the command in force would take the body in 1.5 s."""
     from seeds import render_drive
@@ -164,7 +164,7 @@ def draw(log: Path, gif: Path, every: int) -> None:
     values = np.asarray([v for _, *v in SCRIPT], np.float32)
     times = np.arange(len(qpos)) * 0.05
     command = values[np.searchsorted(starts, times, side="right") - 1]
-    render_drive({"qpos": qpos, "command": command}, str(gif), every=every)
+    render_drive({"qpos": qpos, "command": command}, str(gif), every=every, env_id=env_id)
 
 
 def _link(text: str) -> dict[str, float]:
@@ -224,7 +224,7 @@ def main() -> None:
             for k, link in enumerate(runs)
         ]
         if args.gif:
-            draw(log, Path(args.gif), args.every)
+            draw(log, Path(args.gif), args.every, args.env)
     medians = [
         median_row([r for r in rows if all(r[k] == v for k, v in ln.items())]) for ln in links
     ]

@@ -523,15 +523,22 @@ def joystick_drive(run_dir: str, args: argparse.Namespace) -> None:
         render_drive({"qpos": qpos, "command": commands}, args.gif)
 
 
-def render_drive(path: dict[str, np.ndarray], gif: str, lead: float = 1.5, every: int = 3) -> None:
-    """An animated GIF of a drive (every ``every`` control steps); the red marker sits
-    where the command would take the body in ``lead`` seconds (vx, vy in its heading)."""
+def render_drive(
+    path: dict[str, np.ndarray],
+    gif: str,
+    lead: float = 1.5,
+    every: int = 3,
+    env_id: str = "HexapodJoystick-v0",
+) -> None:
+    """An animated GIF of a drive of ``env_id``'s robot on its ground (every ``every``
+    control steps); the red marker sits where the command would take the body in ``lead``
+    seconds (vx, vy in its heading)."""
     import imageio.v2 as imageio
 
     from jaxenvs import make
     from jaxenvs import render as rendering
 
-    env = make("HexapodJoystick-v0", physics="c")
+    env = make(env_id, physics="c")
     frames = []
     with rendering.Renderer(env, 240, 180, None) as renderer:
         renderer.model.vis.headlight.ambient[:] = 0.35

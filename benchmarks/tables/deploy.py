@@ -77,6 +77,7 @@ def deploy_joystick(recs: list[Rec]) -> Cells:
 TABLES = {
     "deploy-joystick": Table(("deploy_cpu2_joystick",), deploy_joystick),
     "deploy-joystick-filter": Table(("deploy_cpu2_joystick_filter",), deploy_joystick),
+    "deploy-joystick-rough": Table(("deploy_cpu2_joystick_rough",), deploy_joystick),
     "deploy-loop": Table(
         (
             "deploy_cpu2_cartpole",
