@@ -235,3 +235,38 @@ def test_cli_render_with_a_trained_policy(tmp_path, capsys):
     wrong = ["render", "CartpoleBalance-v0", "--policy", str(run_dir), "--out", str(out)]
     assert main(wrong) == 2
     assert "is a run of CartPole-v0" in capsys.readouterr().err
+
+
+def _frames_of(path) -> int:
+    """How many frames the video at ``path`` holds."""
+    return sum(1 for _ in imageio.get_reader(str(path)))
+
+
+def test_policy_video_draws_the_episode_on_its_worker(tmp_path, env, trajectory):
+    """The end-of-run video: the worker makes the renderer ready before the episode comes,
+    then writes every stride-th state's frame (the reset state first)."""
+    from jaxenvs.run.video import PolicyVideo, video_stride
+
+    said: list[str] = []
+    video = PolicyVideo(env, tmp_path / "v.mp4", said.append)
+    video.draw(jax.device_get(trajectory), 11)
+    assert video.wait() == tmp_path / "v.mp4"
+    assert said == []
+    stride = video_stride(env)
+    assert _frames_of(tmp_path / "v.mp4") == len(range(0, 12, stride))
+
+
+def test_policy_video_cancelled_or_failing_writes_nothing(tmp_path, env, trajectory):
+    """Cancelled (an interrupted run), the worker ends without a file; an episode it
+    cannot draw (another task's states) leaves no file either, and one notice says why."""
+    from jaxenvs.run.video import PolicyVideo
+
+    said: list[str] = []
+    cancelled = PolicyVideo(env, tmp_path / "c.mp4", said.append)
+    cancelled.cancel()
+    assert cancelled.wait() is None and not (tmp_path / "c.mp4").exists() and said == []
+    other = jaxenvs.make("Reacher-v0")
+    failing = PolicyVideo(other, tmp_path / "f.mp4", said.append)
+    failing.draw(jax.device_get(trajectory), 11)  # CartpoleSwingup's states
+    assert failing.wait() is None and not (tmp_path / "f.mp4").exists()
+    assert len(said) == 1 and said[0].startswith("no video: ")
