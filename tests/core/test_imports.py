@@ -94,7 +94,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 def test_the_graph_sees_every_kind_of_import():
     graph = import_graph()
     assert "jaxenvs.registry" in graph["jaxenvs.compat.gymnasium"]  # from jaxenvs import registry
-    assert "jaxenvs.render" in graph["jaxenvs.run.results"]  # importlib.import_module("...")
+    assert "jaxenvs.render" in graph["jaxenvs.run.video"]  # importlib.import_module("...")
     assert "jaxenvs.render.viewer" in graph["jaxenvs.compat.gymnasium"]  # inside a method
     assert "jaxenvs" in graph["jaxenvs.cli.list_cmd"]  # import jaxenvs
     assert "jaxenvs" not in graph["jaxenvs.compat.gymnasium"]  # only its submodule registry
