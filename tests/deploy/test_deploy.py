@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pd_policy import PD_GAINS, pd_policy
 
 from jaxenvs import cli
 from jaxenvs.deploy import wire
@@ -28,25 +29,6 @@ from jaxenvs.deploy.log import read_log
 from jaxenvs.deploy.runtime import FORMAT, FORMAT_VERSION, NumpyPolicy
 
 ROOT = Path(__file__).resolve().parents[2]
-PD_GAINS = np.array([0.1, 0.2, 1.0, 0.3], np.float32)
-
-
-def _pd_policy(path: Path, gains: np.ndarray = PD_GAINS) -> Path:
-    """CartPole-v0's PD controller as an exported policy (logits ``(0, gains . obs)``)."""
-    kernel = np.stack([np.zeros(4, np.float32), gains], axis=1)
-    meta = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "env_id": "CartPole-v0",
-        "observation_size": "4",
-        "action_size": "2",
-        "discrete": "1",
-        "control_dt": "0.02",
-        "activation": "tanh",
-    }
-    policy = NumpyPolicy((kernel,), (np.zeros(2, np.float32),), None, True, meta)
-    path.write_bytes(npz_bytes(policy))
-    return path
 
 
 def _env() -> dict[str, str]:
@@ -106,7 +88,7 @@ def _failed_fast(
 def test_deploy_cartpole_through_the_simulated_robot(tmp_path, capsys):
     """About 2 s of CartPole through ``--robot sim``: the summary's fields present and sane,
     no fall, and the log renders to a video."""
-    policy, summary, log = _pd_policy(tmp_path / "pd.npz"), tmp_path / "s.json", tmp_path / "l.mcap"
+    policy, summary, log = pd_policy(tmp_path / "pd.npz"), tmp_path / "s.json", tmp_path / "l.mcap"
     proc = _jaxenvs(
         "deploy",
         str(policy),
@@ -201,7 +183,7 @@ def test_robot_killed_mid_run(tmp_path):
     log = tmp_path / "l.mcap"
     deploy = _jaxenvs(
         "deploy",
-        str(_pd_policy(tmp_path / "pd.npz")),
+        str(pd_policy(tmp_path / "pd.npz")),
         "--env",
         "CartPole-v0",
         "--robot",
@@ -269,7 +251,7 @@ def test_robot_sending_garbage(tmp_path, garbage):
     log = tmp_path / "l.mcap"
     deploy = _jaxenvs(
         "deploy",
-        str(_pd_policy(tmp_path / "pd.npz")),
+        str(pd_policy(tmp_path / "pd.npz")),
         "--env",
         "CartPole-v0",
         "--robot",
@@ -304,7 +286,7 @@ def test_policy_failures_hold_and_stop(tmp_path, gains, flags, cause):
     log = tmp_path / "l.mcap"
     deploy = _jaxenvs(
         "deploy",
-        str(_pd_policy(tmp_path / "p.npz", gains)),
+        str(pd_policy(tmp_path / "p.npz", gains)),
         "--env",
         "CartPole-v0",
         "--robot",
@@ -330,7 +312,7 @@ def test_deploy_refuses_a_policy_of_another_task(tmp_path):
             "-m",
             "jaxenvs",
             "deploy",
-            str(_pd_policy(tmp_path / "pd.npz")),
+            str(pd_policy(tmp_path / "pd.npz")),
             "--env",
             "Reacher-v0",
             "--robot",
@@ -407,7 +389,7 @@ def test_deploy_refuses_a_terrain_it_cannot_set_up(tmp_path, env_id, robot, terr
     """``--terrain`` starts the simulated robot on a tile; it is refused, before any robot
     starts, for a task without a terrain, a level it does not have, or a real robot."""
     done = subprocess.run(
-        [sys.executable, "-m", "jaxenvs", "deploy", str(_pd_policy(tmp_path / "pd.npz"))]
+        [sys.executable, "-m", "jaxenvs", "deploy", str(pd_policy(tmp_path / "pd.npz"))]
         + ["--env", env_id, "--robot", robot, "--seconds", "1", "--terrain", terrain],
         capture_output=True,
         text=True,

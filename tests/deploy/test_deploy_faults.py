@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pd_policy import pd_policy
 
 import jaxenvs
 from jaxenvs import cli
@@ -36,23 +37,7 @@ def spec() -> dict:
 @pytest.fixture()
 def policy(tmp_path) -> Path:
     """CartPole-v0's PD controller as an exported ``.npz``."""
-    gains = np.array([0.1, 0.2, 1.0, 0.3], np.float32)
-    meta = {
-        "format": FORMAT,
-        "format_version": FORMAT_VERSION,
-        "env_id": "CartPole-v0",
-        "observation_size": "4",
-        "action_size": "2",
-        "discrete": "1",
-        "control_dt": "0.02",
-        "activation": "tanh",
-    }
-    kernel = np.stack([np.zeros(4, np.float32), gains], axis=1)
-    path = tmp_path / "pd.npz"
-    path.write_bytes(
-        npz_bytes(NumpyPolicy((kernel,), (np.zeros(2, np.float32),), None, True, meta))
-    )
-    return path
+    return pd_policy(tmp_path / "pd.npz")
 
 
 def _raw(body: bytes) -> bytes:
@@ -362,7 +347,6 @@ def test_policy_is_read_by_its_content(tmp_path, policy):
 
 def test_a_truncated_onnx_policy_is_one_line(tmp_path, capsys):
     from jaxenvs.deploy.export import onnx_model
-    from jaxenvs.deploy.runtime import NumpyPolicy
 
     source = tmp_path / "pd.npz"
     kernel = np.zeros((4, 2), np.float32)

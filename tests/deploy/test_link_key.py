@@ -340,9 +340,9 @@ def test_keyed_robot_serves_on_after_a_client_without_the_key(tmp_path):
         with pytest.raises(ValueError, match="refused the key"):
             intruder.connect()
         intruder.close()
-        from test_deploy import _pd_policy
+        from pd_policy import pd_policy
 
-        policy = _pd_policy(tmp_path / "pd.npz")
+        policy = pd_policy(tmp_path / "pd.npz")
         done = _jaxenvs(
             "deploy", str(policy), "--env", "CartPole-v0", "--robot", f"tcp://127.0.0.1:{port}",
             "--seconds", "1", "--key-file", str(key),
