@@ -39,7 +39,6 @@ from jaxenvs.run.results import (
     format_value,
     metric_columns,
     plot_curves,
-    plotting,
     progress_postfix,
     read_progress,
     summarize,
@@ -355,35 +354,31 @@ def _loop(
         num_chunks * steps, rs.chunk * steps, quiet, f"{resolved.algo} {resolved.env_id}"
     )
     interrupted = False
-    # the plotting library and the video's renderer are made ready while the chunks run
-    threading.Thread(target=plotting, name="import-plotting", daemon=True).start()
+    # the video's renderer is made ready while the chunks run
     video = PolicyVideo(run.programs.env, out / VIDEO_FILE, say) if resolved.train.video else None
-    # A first Ctrl-C only asks to stop after the running chunk is committed. A second
-    # one (KeyboardInterrupt inside _run_chunk) discards the chunk in flight: ``rs``
-    # stays the previous chunk's, which is exactly what the checkpoint on disk holds.
     try:
-        with _StopRequest(say) as stop_request:
-            while rs.chunk < stop and not rs.finished and not stop_request.asked:
-                rs, metrics, seconds = _run_chunk(run, clock, rs)
-                bar.update(steps, progress_postfix(metrics, seconds, steps * run.num_seeds))
-            interrupted = stop_request.asked
-    except KeyboardInterrupt:
-        interrupted = True
-        write_progress(out / PROGRESS_FILE, run.columns, rs.rows)
+        # A first Ctrl-C only asks to stop after the running chunk is committed. A second
+        # one (KeyboardInterrupt inside _run_chunk) discards the chunk in flight: ``rs``
+        # stays the previous chunk's, which is exactly what the checkpoint on disk holds.
+        try:
+            with _StopRequest(say) as stop_request:
+                while rs.chunk < stop and not rs.finished and not stop_request.asked:
+                    rs, metrics, seconds = _run_chunk(run, clock, rs)
+                    bar.update(steps, progress_postfix(metrics, seconds, steps * run.num_seeds))
+                interrupted = stop_request.asked
+        except KeyboardInterrupt:
+            interrupted = True
+            write_progress(out / PROGRESS_FILE, run.columns, rs.rows)
+        finally:
+            bar.close()
+        if interrupted:
+            say(
+                f"interrupted: results and checkpoint are of chunk {rs.chunk}/{num_chunks}; "
+                f"continue with: jaxenvs train --resume {out}"
+            )
+        summary = _finish(run, clock, rs, interrupted, None if interrupted else video)
     finally:
-        bar.close()
-        if video is not None and (interrupted or sys.exc_info()[0] is not None):
-            video.cancel()
-            video = None
-    if interrupted:
-        say(
-            f"interrupted: results and checkpoint are of chunk {rs.chunk}/{num_chunks}; "
-            f"continue with: jaxenvs train --resume {out}"
-        )
-    try:
-        summary = _finish(run, clock, rs, interrupted, video)
-    finally:
-        if video is not None:  # a no-op once the video is written; else frees the worker
+        if video is not None:  # frees the worker (a no-op once the video is written)
             video.cancel()
     if interrupted:
         raise KeyboardInterrupt

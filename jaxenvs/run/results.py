@@ -199,23 +199,14 @@ def learning_curve(
     return steps, ret
 
 
-def plotting() -> Any:
-    """``matplotlib.pyplot`` on its file-only Agg backend (what :func:`plot_curves`
-    draws with), imported on first use; a run calls it on a thread of its own while the
-    chunks run, so that the curve at the end does not wait for the import."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None = None) -> Path:
     """Return vs env steps of each run: every seed thin, the mean bold, min-max shaded;
     a run with a curriculum adds its mean :data:`LEVEL` (over seeds), dashed, on a second
     axis."""
-    plt = plotting()
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     levels = None
