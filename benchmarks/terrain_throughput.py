@@ -29,7 +29,9 @@ import jaxenvs
 FLAT, ROUGH = "HexapodJoystick-v0", "HexapodJoystickRough-v0"
 
 
-def rollout(env_id: str, n: int, steps: int, physics: str, **overrides: Any) -> Callable:
+def rollout(
+    env_id: str, n: int, steps: int, physics: str, **overrides: Any
+) -> tuple[Callable, Any]:
     """A jitted ``(state, key) -> state`` of ``steps`` batched steps, and the first state."""
     benv = jaxenvs.make(env_id, num_envs=n, physics=physics, **overrides)
     size = benv.env.action_size
