@@ -151,6 +151,25 @@ def test_single_env_state_round_trips_bit_for_bit(cartpole_env):
         np.testing.assert_array_equal(*bits)
 
 
+def test_single_env_report_reads_scalars_by_kind(cartpole_env):
+    """One env's report reads every scalar of its first buffer in one go: the reward as
+    a float, the flags and bool infos as bools, integer infos by their bits (a negative
+    int32 stays negative)."""
+    cartpole_env.reset(seed=2)
+    raw = cartpole_env.unwrapped
+    state = raw.state
+    info = {**state.info, "nan_actions": jnp.asarray(-5, jnp.int32), "diverged": jnp.asarray(True)}
+    state = state.replace(
+        reward=jnp.asarray(0.25, jnp.float32), truncated=jnp.asarray(True), info=info
+    )
+    obs, reward, terminated, truncated, got = raw._words.report(jax.jit(raw._words.pack)(state))
+    np.testing.assert_array_equal(obs, np.asarray(state.obs))
+    assert (reward, terminated, truncated) == (0.25, False, True)
+    assert got["nan_actions"] == -5 and type(got["nan_actions"]) is int
+    assert got["diverged"] is True
+    assert set(got) == set(raw._words._info_keys)
+
+
 @pytest.mark.full
 @pytest.mark.parametrize("env_id", ["CartPole-v0", "Reacher-v0"])
 def test_single_env_buffers_stay_small(env_id):

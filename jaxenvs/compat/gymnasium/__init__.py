@@ -160,8 +160,7 @@ class JaxEnv(gymnasium.Env):
         self._bufs = self._fns.step(self._bufs, action)
         if self.render_mode == "human":
             self.render()
-        obs, reward, terminated, truncated, info = self._words.report(self._bufs)
-        return obs, reward, terminated, truncated, info
+        return self._words.report(self._bufs)
 
     def render(self) -> np.ndarray | None:  # type: ignore[override]
         if self.render_mode is None:

@@ -10,6 +10,7 @@ read from the first buffer(s) of the new state without a separate output.
 from __future__ import annotations
 
 import functools
+import struct
 from typing import Any
 
 import jax
@@ -53,11 +54,6 @@ def _to_words(leaf: jax.Array, lead: tuple[int, ...]) -> jax.Array:
     elif leaf.dtype != jnp.float32:
         leaf = jax.lax.bitcast_convert_type(leaf, jnp.float32)
     return jnp.reshape(leaf, (*lead, -1))
-
-
-def _int(bits: int, kind: str) -> int:
-    """The integer whose 32 bits read as int32 are ``bits`` (``kind`` "u": unsigned)."""
-    return bits & 0xFFFFFFFF if kind == "u" else bits
 
 
 class Words:
@@ -139,6 +135,13 @@ class Words:
             (k, np.dtype(leaves[i].dtype).kind)
             for k, i in zip(info_keys, first[len(vectors) + 3 :], strict=True)
         ]
+        # one env's scalars read in one call (:meth:`report`): float32 words as floats,
+        # integer leaves by their bits
+        codes = "".join({"i": "i", "u": "I"}.get(kind, "f") for _, kind in self.info)
+        self._scalar_words = struct.Struct(f"=fff{codes}")
+        self._scalar_offset = 4 * self.scalars.start  # bytes: the words are float32
+        self._info_keys = tuple(k for k, _ in self.info)
+        self._bool_keys = tuple(k for k, kind in self.info if kind == "b")
 
     def _per_env(self, i: int) -> jax.ShapeDtypeStruct:
         x = self.examples[i]
@@ -225,15 +228,12 @@ class Words:
         """One env's ``(obs, reward, terminated, truncated, info)`` read from its buffers
         (Python scalars, a fresh numpy obs)."""
         words = self._host_words(bufs)
-        scalars = words[self.scalars]
-        reals = scalars.tolist()
-        ints = scalars.view(np.int32).tolist()
-        reward, terminated, truncated, *rest = reals
-        info = {
-            key: value if kind == "f" else (value != 0.0) if kind == "b" else _int(bits, kind)
-            for (key, kind), value, bits in zip(self.info, rest, ints[3:], strict=True)
-        }
-        return words[self.obs].copy(), reward, terminated != 0.0, truncated != 0.0, info
+        values = self._scalar_words.unpack_from(words, self._scalar_offset)
+        info = dict(zip(self._info_keys, values[3:], strict=True))
+        for key in self._bool_keys:
+            info[key] = info[key] != 0.0
+        obs = words[self.obs].copy()
+        return obs, values[0], values[1] != 0.0, values[2] != 0.0, info
 
     def report_batch(self, bufs: Bufs) -> dict[str, np.ndarray]:
         """A batch's reported leaves as fresh numpy arrays: ``obs`` (and ``final_obs``)
