@@ -23,6 +23,7 @@ from jaxenvs.tasks.hexapod import (
     HexapodWalk,
     OneLegConfig,
     WalkConfig,
+    contact_solver,
 )
 
 # Parity tolerances (MJX float32 vs MuJoCo C float64, 100 control steps = 500 physics steps).
@@ -297,3 +298,41 @@ def test_one_leg_parity_with_mujoco(physics):
         mjx_qpos.append(np.asarray(state.data.qpos))
     c_qpos = _mj_rollout(env, qpos0, mocap, actions * np.asarray(JOINT_RANGE[:3]))
     np.testing.assert_allclose(np.array(mjx_qpos), c_qpos, atol=LEG_QPOS_ATOL)
+
+
+@pytest.mark.parametrize(
+    ("solver", "physics", "backend", "chosen"),
+    [
+        ("auto", "c", "cpu", "newton"),
+        ("auto", "mjx", "gpu", "newton"),
+        ("auto", "mjx", "cpu", "cg"),
+        ("cg", "c", "cpu", "cg"),
+        ("newton", "mjx", "cpu", "newton"),
+    ],
+)
+def test_contact_solver_is_newton_but_for_mjx_on_a_cpu(solver, physics, backend, chosen) -> None:
+    assert contact_solver(solver, physics, backend) == chosen
+
+
+def test_a_flat_task_takes_the_family_contact_model():
+    """The walker keeps its pyramidal CG 6 / 3 by default; its config picks the elliptic
+    cone and, with ``solver: auto``, Newton under MuJoCo C (4 iterations, 20 line-search
+    steps) and CG for MJX on a CPU; a bad cone or solver is named."""
+    default = HexapodWalk(WalkConfig(physics="c")).sim.mj_model.opt
+    assert (default.cone, default.solver) == (
+        mujoco.mjtCone.mjCONE_PYRAMIDAL,
+        mujoco.mjtSolver.mjSOL_CG,
+    )
+    assert (default.iterations, default.ls_iterations) == (6, 3)
+    for physics, solver, steps in (
+        ("c", mujoco.mjtSolver.mjSOL_NEWTON, (4, 20)),
+        ("mjx", mujoco.mjtSolver.mjSOL_CG, (6, 3)),
+    ):
+        config = WalkConfig(physics=physics, cone="elliptic", solver="auto")
+        for model in (lambda s: s.mj_model, lambda s: s.physics_mj_model):
+            opt = model(HexapodWalk(config).sim).opt
+            assert (opt.cone, opt.solver) == (mujoco.mjtCone.mjCONE_ELLIPTIC, solver)
+            assert (opt.iterations, opt.ls_iterations) == steps
+    for field, value in (("cone", "round"), ("solver", "pgs")):
+        with pytest.raises(ConfigError, match=field):
+            WalkConfig(**{field: value}).validate()

@@ -30,7 +30,6 @@ from jaxenvs.tasks.hexapod.rough import (
     HexapodJoystickRough,
     JoystickRoughConfig,
     RoughCarry,
-    contact_solver,
 )
 
 ID = "HexapodJoystickRough-v0"
@@ -91,20 +90,6 @@ def test_the_terrain_is_the_ground_with_the_rough_contact_setting(env) -> None:
     assert flat.sim.mj_model.nhfield == 0
     pyramid = HexapodJoystickRough(dataclasses.replace(env.config, cone="pyramidal"))
     assert pyramid.sim.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
-
-
-@pytest.mark.parametrize(
-    ("solver", "physics", "backend", "chosen"),
-    [
-        ("auto", "c", "cpu", "newton"),
-        ("auto", "mjx", "gpu", "newton"),
-        ("auto", "mjx", "cpu", "cg"),
-        ("cg", "c", "cpu", "cg"),
-        ("newton", "mjx", "cpu", "newton"),
-    ],
-)
-def test_contact_solver_is_newton_but_for_mjx_on_a_cpu(solver, physics, backend, chosen) -> None:
-    assert contact_solver(solver, physics, backend) == chosen
 
 
 def test_first_levels_and_columns(env) -> None:

@@ -228,7 +228,7 @@ class Words:
         """One env's ``(obs, reward, terminated, truncated, info)`` read from its buffers
         (Python scalars, a fresh numpy obs)."""
         words = self._host_words(bufs)
-        values = self._scalar_words.unpack_from(words, self._scalar_offset)
+        values = self._scalar_words.unpack_from(words.data, self._scalar_offset)
         info = dict(zip(self._info_keys, values[3:], strict=True))
         for key in self._bool_keys:
             info[key] = info[key] != 0.0

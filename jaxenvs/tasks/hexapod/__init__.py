@@ -12,8 +12,8 @@
 ===========================  ===========================================================
 
 :mod:`.base` holds what they share: the params (``HexapodParams``), the config fields of
-a body on the ground (:class:`~.base.HexapodConfig`: solver, spawn, fall rule, the
-energy, tilt and spin weights, noise), and the base task (:class:`~.base.HexapodTask`):
+a body on the ground (:class:`~.base.HexapodConfig`: the contact model, spawn, fall
+rule, the energy, tilt and spin weights, noise), and the base task (:class:`~.base.HexapodTask`):
 the robot on the task's scene (a flat floor unless the task is given another ground,
 :mod:`jaxenvs.scenes`), the spawn at a random yaw, the fall rule and the servos' energy.
 Shared reward terms live in :mod:`jaxenvs.tasks.rewards`.
@@ -25,12 +25,15 @@ stable stance. Each task's observation is :meth:`observation` of the robot's rea
 (:meth:`~jaxenvs.robots.base.Robot.sense`) and the task's own state (:meth:`task_state`).
 
 Physics for MJX speed on CPU (measurements in benchmarks/NOTES.md): the only collisions
-are six explicit foot-ground pairs (condim 3, pyramidal cone), added by the scene; joints
-are unlimited (no limit rows: the servo range is the joint range); Euler integration
-with damping implicit; the CG solver (``solver_iterations`` and ``ls_iterations`` from
-the config) with a SPARSE mass matrix, so that no step calls LAPACK (MJX's Newton solver
-and dense factorisations do). MuJoCo does not evaluate the MJCF's sensors in the physics
-steps (no task reads ``sensordata``).
+are six explicit foot-ground pairs (condim 3), added by the scene; joints are unlimited
+(no limit rows: the servo range is the joint range); Euler integration with damping
+implicit; a SPARSE mass matrix. The contact model is the config's (``cone``, ``solver``
+and their iterations, :func:`~.base.contact_edit`): the flat tasks' default is the
+pyramidal cone with a few CG iterations, so that no step calls LAPACK (MJX's Newton
+solver and dense factorisations do); ``cone: elliptic`` makes the contact
+heading-independent, and ``solver: auto`` picks Newton where it is fast (MuJoCo C, MJX
+on an accelerator) and CG for MJX on a CPU. MuJoCo does not evaluate the MJCF's sensors
+in the physics steps (no task reads ``sensordata``).
 
 Params (``HexapodParams``, ``JoystickParams``): ``model`` holds MJX model fields
 ``body_mass``, ``body_inertia``, ``dof_damping``, ``actuator_gainprm``,
@@ -43,10 +46,14 @@ servo's kp (gain and bias together) by ``gain_scale`` and each joint's damping b
 """
 
 from jaxenvs.tasks.hexapod.base import (
+    CONES,
+    SOLVERS,
     HexapodConfig,
     HexapodParams,
     HexapodRandomization,
     HexapodTask,
+    contact_edit,
+    contact_solver,
     solver_edit,
 )
 from jaxenvs.tasks.hexapod.joystick import (
@@ -65,8 +72,10 @@ from jaxenvs.tasks.hexapod.rough import HexapodJoystickRough, JoystickRoughConfi
 from jaxenvs.tasks.hexapod.walk import OBS_NOISE, TARGET, HexapodWalk, WalkConfig, WalkExtras
 
 __all__ = [
+    "CONES",
     "OBS_NOISE",
     "SENSOR_SIZE",
+    "SOLVERS",
     "TARGET",
     "HexapodConfig",
     "HexapodJoystick",
@@ -86,6 +95,8 @@ __all__ = [
     "WalkExtras",
     "heading",
     "heading_velocity",
+    "contact_edit",
+    "contact_solver",
     "low_pass",
     "sample_command",
     "solver_edit",

@@ -1,5 +1,6 @@
 """What the hexapod tasks share: their params, the config fields of a body on the ground,
-the solver settings, and the base task (robot, scene, spawn, fall rule, energy)."""
+the contact model (friction cone and solver, picked per engine), and the base task (robot,
+scene, spawn, fall rule, energy)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import Env, TaskConfig
+from jaxenvs.physics import resolve_engine
 from jaxenvs.robots.base import Readings, RobotTask
 from jaxenvs.robots.hexapod import Hexapod, HexapodRanges
 from jaxenvs.scenes import Ground, Marker
@@ -29,6 +31,10 @@ if TYPE_CHECKING:
 #: hexapod scene holds it, first among the bodies (the joystick's stays where it is drawn):
 #: the randomised bodies' draws are indexed by body, so the shipped figures' draws stay
 TARGET = Marker("target", pos=(1.0, 0.0, 0.01), radius=0.05, half_height=0.005)
+#: the friction cones a hexapod config may name
+CONES = {"pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL, "elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC}
+#: the contact solvers a hexapod config may name (``"auto"``: :func:`contact_solver`)
+SOLVERS = ("cg", "newton", "auto")
 
 
 class HexapodParams(struct.PyTreeNode):
@@ -66,8 +72,14 @@ class HexapodConfig(HexapodRandomization):
 
     Attributes:
       episode_length: 1000 steps of 0.05 s (50 s).
-      solver_iterations, ls_iterations: CG solver iterations and line-search steps of the
-        contact solve.
+      cone: the friction cone, ``"pyramidal"`` (its edges fixed in the world's frame: the
+        physics depends on the robot's heading) or ``"elliptic"`` (heading-independent).
+      solver: the contact solver, ``"cg"``, ``"newton"`` or ``"auto"`` (Newton, but CG for
+        MJX on a CPU: :func:`contact_solver`).
+      solver_iterations, ls_iterations: the CG solve's iterations and line-search steps.
+      newton_iterations, newton_ls_iterations: Newton's (4 and 20 converge on the
+        hexapod's contacts; with 6 line-search steps MuJoCo C's solve stopped short on
+        some randomised robots).
       energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
       alive_bonus: reward per step while not fallen.
       tilt_weight: weight of the tilt penalty ``1 - up_z`` (0 upright, 0.29 at 45 degrees),
@@ -86,8 +98,12 @@ class HexapodConfig(HexapodRandomization):
     """
 
     episode_length: int = 1000
+    cone: str = "pyramidal"
+    solver: str = "cg"
     solver_iterations: int = 6
     ls_iterations: int = 3
+    newton_iterations: int = 4
+    newton_ls_iterations: int = 20
     energy_weight: float = 0.002
     alive_bonus: float = 0.05
     tilt_weight: float = 0.0
@@ -112,12 +128,46 @@ class HexapodConfig(HexapodRandomization):
 
     def validate(self) -> None:
         super().validate()
-        require(self.solver_iterations >= 1, "solver_iterations", "must be >= 1")
-        require(self.ls_iterations >= 1, "ls_iterations", "must be >= 1")
+        require(self.cone in CONES, "cone", f"must be one of {', '.join(CONES)}")
+        require(self.solver in SOLVERS, "solver", f"must be one of {', '.join(SOLVERS)}")
+        for name in ("solver_iterations", "ls_iterations", "newton_iterations"):
+            require(getattr(self, name) >= 1, name, "must be >= 1")
+        require(self.newton_ls_iterations >= 1, "newton_ls_iterations", "must be >= 1")
         for name in self.nonnegative:
             require(getattr(self, name) >= 0, name, "must be >= 0")
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
+
+
+def contact_solver(solver: str, physics: str, backend: str | None = None) -> str:
+    """The solver ``solver`` means for an env stepped by ``physics`` (``"mjx"`` or ``"c"``)
+    on ``backend`` (default: JAX's): itself, or for ``"auto"`` ``"newton"``, but ``"cg"``
+    for MJX on a CPU (MJX's Newton calls LAPACK's batched Cholesky there, which stalls
+    XLA's CPU thread pool at batches of 128 or more: benchmarks/NOTES.md)."""
+    if solver != "auto":
+        return solver
+    on_cpu = (backend or jax.default_backend()) == "cpu"
+    return "cg" if physics == "mjx" and on_cpu else "newton"
+
+
+def contact_edit(config: HexapodConfig, physics: str) -> Callable[[mujoco.MjModel], None]:
+    """A model edit setting the config's friction cone and contact solve for an env
+    stepped by ``physics``: the solver :func:`contact_solver` picks, with its iterations
+    and line-search steps."""
+    cone = CONES[config.cone]
+    if contact_solver(config.solver, physics) == "newton":
+        kind = mujoco.mjtSolver.mjSOL_NEWTON
+        solve = solver_edit(config.newton_iterations, config.newton_ls_iterations)
+    else:
+        kind = mujoco.mjtSolver.mjSOL_CG
+        solve = solver_edit(config.solver_iterations, config.ls_iterations)
+
+    def edit(model: mujoco.MjModel) -> None:
+        solve(model)
+        model.opt.solver = kind
+        model.opt.cone = cone
+
+    return edit
 
 
 def solver_edit(iterations: int, ls_iterations: int) -> Callable[[mujoco.MjModel], None]:
@@ -167,9 +217,11 @@ class HexapodTask(RobotTask, Env[ConfigT], Generic[ConfigT]):
         super().__init__(config, sim)
 
     def model_edit(self, config: ConfigT) -> Callable[[mujoco.MjModel], None]:
-        """The edit of the host model: the config's solver iterations (a task that sets
-        more of the contact model, such as its friction cone, extends it)."""
-        return solver_edit(config.solver_iterations, config.ls_iterations)
+        """The edit of the host model: the config's contact model (:func:`contact_edit`)
+        for the engine its ``physics`` names (a task that edits more extends it)."""
+        auto = config.solver == "auto"  # only then does the engine matter
+        physics = resolve_engine(type(self), config.physics) if auto else config.physics
+        return contact_edit(config, physics)
 
     def spawn(self, u: jax.Array) -> jax.Array:
         """The start's ``qpos`` from 19 uniforms in [0, 1): the body at ``init_height``

@@ -66,10 +66,8 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import State
-from jaxenvs.physics import resolve_engine
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, generate
-from jaxenvs.tasks.hexapod.base import solver_edit
 from jaxenvs.tasks.hexapod.joystick import (
     HexapodJoystick,
     JoystickConfig,
@@ -82,9 +80,7 @@ if TYPE_CHECKING:
     from mujoco import mjx
 
 __all__ = [
-    "CONES",
     "SCAN_KEYS",
-    "SOLVERS",
     "SCAN_OFFSETS",
     "HexapodJoystickRough",
     "JoystickRoughConfig",
@@ -93,10 +89,6 @@ __all__ = [
     "terrain_of",
 ]
 
-#: the friction cones a config may name
-CONES = {"elliptic": mujoco.mjtCone.mjCONE_ELLIPTIC, "pyramidal": mujoco.mjtCone.mjCONE_PYRAMIDAL}
-#: the contact solvers a config may name (``"auto"``: :func:`contact_solver`)
-SOLVERS = ("auto", "newton", "cg")
 #: the critic's height scan: a 7 x 7 grid, 7 cm apart, in the body's heading frame
 SCAN_OFFSETS = scan_grid(7, 7, 0.07)
 #: the scan's metric keys, one per point of :data:`SCAN_OFFSETS`
@@ -113,13 +105,11 @@ class JoystickRoughConfig(JoystickConfig):
 
     Attributes:
       episode_length: 400 control steps (20 s).
-      solver: the contact solver, ``"newton"``, ``"cg"`` or ``"auto"`` (Newton, but CG for
-        MJX on a CPU: :func:`contact_solver`).
-      solver_iterations, ls_iterations: the CG solve's iterations and line-search steps
-        (30 and 10: converged).
-      newton_iterations, newton_ls_iterations: Newton's (4 and 20: converged; with 6
-        line-search steps MuJoCo C's solve stopped short on some randomised robots).
-      cone: the friction cone, ``"elliptic"`` (heading-independent) or ``"pyramidal"``.
+      cone: ``"elliptic"`` (heading-independent).
+      solver: ``"auto"``: Newton, but CG for MJX on a CPU
+        (:func:`~jaxenvs.tasks.hexapod.base.contact_solver`).
+      solver_iterations, ls_iterations: the CG solve's, 30 and 10: converged (the flat
+        tasks' few diverge on the heightfield).
       levels: difficulty levels of the terrain (rows of tiles).
       terrain_types: the terrain type of each column of tiles
         (:data:`jaxenvs.scenes.terrain.TYPES`).
@@ -135,12 +125,10 @@ class JoystickRoughConfig(JoystickConfig):
     """
 
     episode_length: int = 400
+    cone: str = "elliptic"
     solver: str = "auto"
     solver_iterations: int = 30
     ls_iterations: int = 10
-    newton_iterations: int = 4
-    newton_ls_iterations: int = 20
-    cone: str = "elliptic"
     levels: int = 10
     terrain_types: tuple[str, ...] = TYPES
     tile_size: float = 3.0
@@ -165,10 +153,6 @@ class JoystickRoughConfig(JoystickConfig):
 
     def validate(self) -> None:
         super().validate()
-        require(self.cone in CONES, "cone", f"must be one of {', '.join(CONES)}")
-        require(self.solver in SOLVERS, "solver", f"must be one of {', '.join(SOLVERS)}")
-        require(self.newton_iterations >= 1, "newton_iterations", "must be >= 1")
-        require(self.newton_ls_iterations >= 1, "newton_ls_iterations", "must be >= 1")
         require(self.levels >= 1, "levels", "must be >= 1")
         unknown = sorted(set(self.terrain_types) - set(TYPES))
         require(bool(self.terrain_types) and not unknown, "terrain_types", f"unknown {unknown}")
@@ -184,17 +168,6 @@ class JoystickRoughConfig(JoystickConfig):
         foreign = sorted(set(self.spawn_types) - set(self.terrain_types))
         require(not foreign, "spawn_types", f"{foreign} not among terrain_types")
         require(self.promote_fraction > 0, "promote_fraction", "must be > 0")
-
-
-def contact_solver(solver: str, physics: str, backend: str | None = None) -> str:
-    """The solver ``solver`` means for an env stepped by ``physics`` (``"mjx"`` or ``"c"``)
-    on ``backend`` (default: JAX's): itself, or for ``"auto"`` ``"newton"``, but ``"cg"``
-    for MJX on a CPU (MJX's Newton calls LAPACK's batched Cholesky there, which stalls
-    XLA's CPU thread pool at batches of 128 or more: benchmarks/NOTES.md)."""
-    if solver != "auto":
-        return solver
-    on_cpu = (backend or jax.default_backend()) == "cpu"
-    return "cg" if physics == "mjx" and on_cpu else "newton"
 
 
 @functools.lru_cache(maxsize=4)
@@ -253,23 +226,13 @@ class HexapodJoystickRough(HexapodJoystick):
         self._spawn_columns = jnp.asarray(allowed, jnp.int32)
 
     def model_edit(self, config: JoystickConfig) -> Callable[[mujoco.MjModel], None]:
-        """The config's contact solver (:func:`contact_solver`, for the engine the config
-        asks for) and friction cone; a brighter headlight (drawing only: the scene's one
-        light is above the world's origin, and most tiles are metres away)."""
-        assert isinstance(config, JoystickRoughConfig)
-        cone = CONES[config.cone]
-        physics = resolve_engine(type(self), getattr(config, "physics", "auto"))
-        if contact_solver(config.solver, physics) == "newton":
-            solver = mujoco.mjtSolver.mjSOL_NEWTON
-            solve = solver_edit(config.newton_iterations, config.newton_ls_iterations)
-        else:
-            solver = mujoco.mjtSolver.mjSOL_CG
-            solve = solver_edit(config.solver_iterations, config.ls_iterations)
+        """The contact model (the base's: :func:`~jaxenvs.tasks.hexapod.base.contact_edit`)
+        and a brighter headlight (drawing only: the scene's one light is above the world's
+        origin, and most tiles are metres away)."""
+        contact = super().model_edit(config)
 
         def edit(model: mujoco.MjModel) -> None:
-            solve(model)
-            model.opt.solver = solver
-            model.opt.cone = cone
+            contact(model)
             model.vis.headlight.ambient[:] = 0.35
             model.vis.headlight.diffuse[:] = 0.55
 
