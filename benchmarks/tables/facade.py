@@ -32,4 +32,5 @@ TABLES = {
     "facade-c": Table(("facade_cpu2_reacher_c",), facade),
     "facade-native": Table(("facade_cpu2_native",), facade),
     "facade-single-idle": Table(("facade_cpu2_single_idle",), facade),
+    "facade-single-struct": Table(("facade_cpu2_single_struct",), facade),
 }
