@@ -7,6 +7,8 @@ from .common import Cells, Rec, Row, Table, one, rate, rows
 FILES = ("scaling_h200x2_reacher_walker",)
 GPU_FILES = ("scaling_gpu",)
 GPU4_FILES = ("scaling_gpu4",)
+JOYSTICK_FILES = ("scaling_gpu4_joystick",)
+JOYSTICK_SEEDS_FILES = ("scaling_gpu2_joystick_seeds",)
 
 
 def _per_call(r: Row) -> str:
@@ -77,4 +79,6 @@ TABLES = {
     "scaling-ppo": Table(FILES, scaling_ppo),
     "scaling-gpu": Table(GPU_FILES, scaling_gpu),
     "scaling-gpu4": Table(GPU4_FILES, scaling_gpu),
+    "scaling-gpu4-joystick": Table(JOYSTICK_FILES, scaling_gpu),
+    "scaling-gpu2-joystick-seeds": Table(JOYSTICK_SEEDS_FILES, scaling_gpu),
 }
