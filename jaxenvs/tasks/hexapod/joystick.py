@@ -17,8 +17,8 @@ per env by ``gain_scale`` when params are randomised. All draws come from the ho
 so MJX and MuJoCo C physics see the same ones.
 
 Physics as ``HexapodWalk-v0`` (:mod:`jaxenvs.tasks.hexapod.base`): the robot on its
-scene, six foot-ground contact pairs, Euler with implicit damping, the CG solver with
-``solver_iterations`` and ``ls_iterations`` from the config.
+scene, six foot-ground contact pairs, Euler with implicit damping, the config's contact
+model (``cone``, ``solver`` and their iterations: pyramidal CG by default).
 """
 
 from __future__ import annotations
