@@ -74,10 +74,38 @@ def deploy_joystick(recs: list[Rec]) -> Cells:
     return each_row(head, rows, cells)
 
 
+def deploy_rough_types(recs: list[Rec]) -> Cells:
+    """HexapodJoystickRough-v0 through the link, one 60 s drive per terrain tile."""
+
+    def cells(r: Row) -> list[str]:
+        return [
+            r["terrain"],
+            f"{r['lin_rms']:.3f}",
+            f"{r['yaw_rms']:.3f}",
+            "yes" if r["fell"] else "no",
+            f"{r['period_ms_p99']:.1f}",
+            f"{r['round_trip_ms_p50']:.0f}",
+            met(bool(r["passes"])),
+        ]
+
+    head = [
+        "tile (level:type)",
+        "lin error RMS (m/s)",
+        "yaw error RMS (rad/s)",
+        "fell",
+        "period p99 (ms)",
+        "round trip p50 (ms)",
+        "within 1.5x the simulation's errors, no fall",
+    ]
+    rows = [r for rec in recs for r in rec["rows"] if "median_of" not in r]
+    return each_row(head, rows, cells)
+
+
 TABLES = {
     "deploy-joystick": Table(("deploy_cpu2_joystick",), deploy_joystick),
     "deploy-joystick-filter": Table(("deploy_cpu2_joystick_filter",), deploy_joystick),
     "deploy-joystick-rough": Table(("deploy_cpu2_joystick_rough",), deploy_joystick),
+    "deploy-joystick-rough-types": Table(("deploy_cpu2_joystick_rough_types",), deploy_rough_types),
     "deploy-loop": Table(
         (
             "deploy_cpu2_cartpole",
