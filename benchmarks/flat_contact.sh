@@ -6,15 +6,8 @@
 # benchmarks/seeds.py; the runs in runs/{wp,we,jp,je}, logs in $OUT. Then, here:
 #   python benchmarks/seeds.py table runs/wp runs/we --json ppo_walker_contact_<gpu>
 #   python benchmarks/seeds.py table runs/jp runs/je --json ppo_joystick_contact_<gpu>
-# Run from the repository root with mujoco's wheels in .whl/ (or drop the pip line where
-# installed).
-set -u
-OUT=${OUT:-out}
-mkdir -p "$OUT"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-export PYTHONPATH=/tmp/site:$PWD
-python3 setup.py build_ext --inplace >/dev/null 2>&1 || echo BUILD FAIL
-nvidia-smi -L; nproc
+# Run from the repository root of a 4-GPU host (benchmarks/gpu_host.sh sets it up).
+source benchmarks/gpu_host.sh
 python3 - <<'PY'
 import yaml
 from jaxenvs.run.run_config import CONFIGS_DIR

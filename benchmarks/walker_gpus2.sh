@@ -2,14 +2,8 @@
 # Time to quality on two GPUs: the walker's two-GPU config (3 seeds, two runs at once on a
 # 4-GPU host) beside the one-GPU config (2 seeds), each run cold, then both evaluated on MJX
 # and MuJoCo C (benchmarks/seeds.py); results in $OUT. Run from the repository root on a
-# host with 4 GPUs, with mujoco's wheels in .whl/ (or drop the pip line where installed).
-set -u
-OUT=${OUT:-out}
-mkdir -p "$OUT"
-python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl || exit 1
-export PYTHONPATH=/tmp/site:$PWD
-python3 setup.py build_ext --inplace >/dev/null 2>&1 || echo BUILD FAIL
-nvidia-smi -L; nproc
+# host with 4 GPUs (benchmarks/gpu_host.sh sets it up).
+source benchmarks/gpu_host.sh
 mkdir -p runs
 train() { # name gpus seed config cores
   local s=$(date +%s.%N)

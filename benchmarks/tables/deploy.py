@@ -40,6 +40,28 @@ def deploy_loop(recs: list[Rec]) -> Cells:
     return each_row(head, rows, cells)
 
 
+#: the heads of a drive's figures (the cells: :func:`_drive_cells`)
+_DRIVE_HEAD = [
+    "lin error RMS (m/s)",
+    "yaw error RMS (rad/s)",
+    "falls",
+    "period p99 (ms)",
+    "round trip p50 (ms)",
+    "within 1.5x the simulation's errors, no fall",
+]
+
+
+def _drive_cells(r: Row, falls: str, passed: bool) -> list[str]:
+    return [
+        f"{r['lin_rms']:.3f}",
+        f"{r['yaw_rms']:.3f}",
+        falls,
+        f"{r['period_ms_p99']:.1f}",
+        f"{r['round_trip_ms_p50']:.0f}",
+        met(passed),
+    ]
+
+
 def deploy_joystick(recs: list[Rec]) -> Cells:
     """HexapodJoystick-v0 through the link, one line per link setting (median of its runs)."""
 
@@ -49,27 +71,9 @@ def deploy_joystick(recs: list[Rec]) -> Cells:
             if not (r["latency_ms"] or r["jitter_ms"] or r["noise"])
             else f"{r['latency_ms']:g} + [0, {r['jitter_ms']:g}] ms, noise {r['noise']:g}"
         )
-        return [
-            link,
-            f"{r['median_of']}",
-            f"{r['lin_rms']:.3f}",
-            f"{r['yaw_rms']:.3f}",
-            f"{r['falls']}",
-            f"{r['period_ms_p99']:.1f}",
-            f"{r['round_trip_ms_p50']:.0f}",
-            met(bool(r["all_pass"])),
-        ]
+        return [link, f"{r['median_of']}", *_drive_cells(r, f"{r['falls']}", r["all_pass"])]
 
-    head = [
-        "link: latency + jitter, sensor noise",
-        "runs (median)",
-        "lin error RMS (m/s)",
-        "yaw error RMS (rad/s)",
-        "falls",
-        "period p99 (ms)",
-        "round trip p50 (ms)",
-        "within 1.5x the simulation's errors, no fall",
-    ]
+    head = ["link: latency + jitter, sensor noise", "runs (median)", *_DRIVE_HEAD]
     rows = [r for rec in recs for r in rec["rows"] if "median_of" in r]
     return each_row(head, rows, cells)
 
@@ -78,25 +82,9 @@ def deploy_rough_types(recs: list[Rec]) -> Cells:
     """HexapodJoystickRough-v0 through the link, one 60 s drive per terrain tile."""
 
     def cells(r: Row) -> list[str]:
-        return [
-            r["terrain"],
-            f"{r['lin_rms']:.3f}",
-            f"{r['yaw_rms']:.3f}",
-            "yes" if r["fell"] else "no",
-            f"{r['period_ms_p99']:.1f}",
-            f"{r['round_trip_ms_p50']:.0f}",
-            met(bool(r["passes"])),
-        ]
+        return [r["terrain"], *_drive_cells(r, "yes" if r["fell"] else "no", r["passes"])]
 
-    head = [
-        "tile (level:type)",
-        "lin error RMS (m/s)",
-        "yaw error RMS (rad/s)",
-        "fell",
-        "period p99 (ms)",
-        "round trip p50 (ms)",
-        "within 1.5x the simulation's errors, no fall",
-    ]
+    head = ["tile (level:type)", *_DRIVE_HEAD]
     rows = [r for rec in recs for r in rec["rows"] if "median_of" not in r]
     return each_row(head, rows, cells)
 
