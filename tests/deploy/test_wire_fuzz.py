@@ -6,6 +6,7 @@ times as many under ``-m full`` (one to two minutes)."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import socket
 import threading
@@ -240,7 +241,8 @@ class _Policy:
 
 def _fuzzing_robot(server: socket.socket, bodies: list[bytes], got: list) -> None:
     """Hello, sensor frames every 10 ms with the fuzzed frames after the third, until the
-    loop says bye; what the loop sent lands in ``got``."""
+    loop says bye (or 10 s pass: a loaded machine may start the loop late); what the loop
+    sent lands in ``got``."""
     conn, _ = server.accept()
     with conn:
         conn.settimeout(2)
@@ -254,7 +256,10 @@ def _fuzzing_robot(server: socket.socket, bodies: list[bytes], got: list) -> Non
         conn.sendall(wire.encode({"type": "hello", "version": 1, **spec}))
         reader = wire.FrameReader()
         try:
-            for k in range(100):
+            deadline = time.monotonic() + 10.0
+            for k in itertools.count():
+                if time.monotonic() > deadline:
+                    break
                 readings = {n: np.zeros(1) for n in SIZES}
                 conn.sendall(wire.encode(wire.sensors(k, 0.01 * k, -1, readings)))
                 if k == 3:
@@ -266,8 +271,23 @@ def _fuzzing_robot(server: socket.socket, bodies: list[bytes], got: list) -> Non
                     pass
                 if any(m["type"] == "bye" for m in got):
                     return
+        except OSError:  # the loop closed the link: what it sent first is still queued
+            pass
+        _drain(conn, reader, got)
+
+
+def _drain(conn: socket.socket, reader: wire.FrameReader, got: list) -> None:
+    """Read what is left in the robot's end of the link into ``got``: the frames the loop
+    sent before it closed are still queued when the robot's own send failed first."""
+    conn.settimeout(0.2)
+    while True:
+        try:
+            data = conn.recv(1 << 16)
         except OSError:
             return
+        if not data:
+            return
+        got += reader.feed(data)
 
 
 def _loop_end(examples: int) -> None:
