@@ -328,9 +328,9 @@ def test_a_flat_task_takes_the_family_contact_model():
         ("c", mujoco.mjtSolver.mjSOL_NEWTON, (4, 20)),
         ("mjx", mujoco.mjtSolver.mjSOL_CG, (6, 3)),
     ):
-        config = WalkConfig(physics=physics, cone="elliptic", solver="auto")
-        for model in (lambda s: s.mj_model, lambda s: s.physics_mj_model):
-            opt = model(HexapodWalk(config).sim).opt
+        sim = HexapodWalk(WalkConfig(physics=physics, cone="elliptic", solver="auto")).sim
+        for model in (sim.mj_model, sim.physics_mj_model):
+            opt = model.opt
             assert (opt.cone, opt.solver) == (mujoco.mjtCone.mjCONE_ELLIPTIC, solver)
             assert (opt.iterations, opt.ls_iterations) == steps
     for field, value in (("cone", "round"), ("solver", "pgs")):

@@ -130,9 +130,9 @@ class HexapodConfig(HexapodRandomization):
         super().validate()
         require(self.cone in CONES, "cone", f"must be one of {', '.join(CONES)}")
         require(self.solver in SOLVERS, "solver", f"must be one of {', '.join(SOLVERS)}")
-        for name in ("solver_iterations", "ls_iterations", "newton_iterations"):
+        steps = ("solver_iterations", "ls_iterations", "newton_iterations", "newton_ls_iterations")
+        for name in steps:
             require(getattr(self, name) >= 1, name, "must be >= 1")
-        require(self.newton_ls_iterations >= 1, "newton_ls_iterations", "must be >= 1")
         for name in self.nonnegative:
             require(getattr(self, name) >= 0, name, "must be >= 0")
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
