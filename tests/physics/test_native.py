@@ -61,10 +61,12 @@ def test_the_install_built_the_native_engine():
 
 
 def _engines(env_id: str, **overrides):
+    """The C env of ``env_id`` and a callback-path engine over the same host model (its
+    blank data from the MJX build)."""
     env = jaxenvs.make(env_id, physics="c", **overrides)
     base = jaxenvs.make(env_id, physics="mjx", **overrides).sim
     other = cengine.CEngine(
-        base.physics_mj_model,
+        env.sim.physics_mj_model,
         base._data0,
         env.sim.engine.threads,
         "callback",

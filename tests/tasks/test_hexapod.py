@@ -8,6 +8,8 @@ on MJX in the full tier (an MJX compile each; the walker's is about 15 s).
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -39,16 +41,18 @@ WALK_XY_ATOL = 0.06  # m, torso horizontal position after up to 5 s of shuffling
 WALK_JOINT_ATOL = 0.1  # rad, joint angles
 
 
-_JITTED: dict[tuple[type, str], tuple] = {}
+_JITTED: dict[tuple[type, str, tuple], tuple] = {}
 
 
-def _jitted(task: type, physics: str = "auto") -> tuple:
-    """(env, jitted reset, jitted step) of ``task`` on ``physics``, once per module."""
-    if (task, physics) not in _JITTED:
-        config = {HexapodWalk: WalkConfig, HexapodOneLeg: OneLegConfig}[task](physics=physics)
-        env = task(config)
-        _JITTED[task, physics] = env, jax.jit(env.reset), jax.jit(env.step)
-    return _JITTED[task, physics]
+def _jitted(task: type, physics: str = "auto", **fields: Any) -> tuple:
+    """(env, jitted reset, jitted step) of ``task`` on ``physics`` with config ``fields``,
+    once per module."""
+    key = (task, physics, tuple(sorted(fields.items())))
+    if key not in _JITTED:
+        make = {HexapodWalk: WalkConfig, HexapodOneLeg: OneLegConfig}[task]
+        env = task(make(physics=physics, **fields))
+        _JITTED[key] = env, jax.jit(env.reset), jax.jit(env.step)
+    return _JITTED[key]
 
 
 @pytest.fixture(scope="module")
@@ -225,7 +229,12 @@ def test_walker_tilt_and_spin_penalties(walk):
     ["auto", pytest.param("mjx", marks=pytest.mark.full)],  # the walker's MJX compile
 )
 def test_walker_parity_with_mujoco(physics):
-    env, reset, step = _jitted(HexapodWalk, physics)
+    """The walker stepped by ``physics`` and by MuJoCo C on the env's own host model agree
+    over 100 control steps of a sine gait. MJX on a CPU runs Newton's solve here, as on a
+    GPU: its default there, ``solver: auto``'s few CG iterations, stops short of the
+    elliptic cone's solution, where C's Newton converges."""
+    fields = {"solver": "newton"} if physics == "mjx" else {}
+    env, reset, step = _jitted(HexapodWalk, physics, **fields)
     state = reset(jax.random.key(3))
     qpos0 = np.asarray(state.data.qpos, np.float64)
     mocap = np.asarray(state.data.mocap_pos, np.float64)
@@ -315,24 +324,24 @@ def test_contact_solver_is_newton_but_for_mjx_on_a_cpu(solver, physics, backend,
 
 
 def test_a_flat_task_takes_the_family_contact_model():
-    """The walker keeps its pyramidal CG 6 / 3 by default; its config picks the elliptic
-    cone and, with ``solver: auto``, Newton under MuJoCo C (4 iterations, 20 line-search
-    steps) and CG for MJX on a CPU; a bad cone or solver is named."""
-    default = HexapodWalk(WalkConfig(physics="c")).sim.mj_model.opt
-    assert (default.cone, default.solver) == (
-        mujoco.mjtCone.mjCONE_PYRAMIDAL,
-        mujoco.mjtSolver.mjSOL_CG,
-    )
-    assert (default.iterations, default.ls_iterations) == (6, 3)
+    """The walker's default contact is the elliptic cone with ``solver: auto``: Newton
+    under MuJoCo C (4 iterations, 20 line-search steps), CG for MJX on a CPU (its 6 / 3);
+    its config can name the pyramidal cone and CG instead; a bad cone or solver is named."""
     for physics, solver, steps in (
         ("c", mujoco.mjtSolver.mjSOL_NEWTON, (4, 20)),
         ("mjx", mujoco.mjtSolver.mjSOL_CG, (6, 3)),
     ):
-        sim = HexapodWalk(WalkConfig(physics=physics, cone="elliptic", solver="auto")).sim
+        sim = HexapodWalk(WalkConfig(physics=physics)).sim
         for model in (sim.mj_model, sim.physics_mj_model):
             opt = model.opt
             assert (opt.cone, opt.solver) == (mujoco.mjtCone.mjCONE_ELLIPTIC, solver)
             assert (opt.iterations, opt.ls_iterations) == steps
+    pyramid = HexapodWalk(WalkConfig(physics="c", cone="pyramidal", solver="cg")).sim.mj_model
+    assert (pyramid.opt.cone, pyramid.opt.solver) == (
+        mujoco.mjtCone.mjCONE_PYRAMIDAL,
+        mujoco.mjtSolver.mjSOL_CG,
+    )
+    assert (pyramid.opt.iterations, pyramid.opt.ls_iterations) == (6, 3)
     for field, value in (("cone", "round"), ("solver", "pgs")):
         with pytest.raises(ConfigError, match=field):
             WalkConfig(**{field: value}).validate()

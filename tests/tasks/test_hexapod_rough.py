@@ -70,9 +70,9 @@ def starts(env: HexapodJoystickRough, levels: Any, columns: Any, seed: int = 0) 
 
 
 def test_the_terrain_is_the_ground_with_the_rough_contact_setting(env) -> None:
-    """The feet are paired with the terrain's heightfield; the rough task's own cone and
-    solver (elliptic; under C Newton 4 / 20, for MJX on a CPU CG 30 / 10), while the flat
-    joystick keeps its pyramidal CG 6 / 3."""
+    """The feet are paired with the terrain's heightfield; the family's contact (elliptic;
+    under C Newton 4 / 20) with the rough task's own CG for MJX on a CPU (30 / 10, where
+    the flat joystick's is 6 / 3)."""
     m = env.sim.mj_model
     assert m.nhfield == 1 and m.npair == 6
     hfield = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "terrain")
@@ -84,10 +84,10 @@ def test_the_terrain_is_the_ground_with_the_rough_contact_setting(env) -> None:
     mjx_cpu = HexapodJoystickRough(dataclasses.replace(env.config, physics="mjx")).sim.mj_model
     cg = (mujoco.mjtSolver.mjSOL_CG, 30, 10)
     assert (mjx_cpu.opt.solver, mjx_cpu.opt.iterations, mjx_cpu.opt.ls_iterations) == cg
-    flat = jaxenvs.make("HexapodJoystick-v0", physics="c")
-    assert flat.sim.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
-    assert (flat.sim.mj_model.opt.iterations, flat.sim.mj_model.opt.ls_iterations) == (6, 3)
-    assert flat.sim.mj_model.nhfield == 0
+    flat = jaxenvs.make("HexapodJoystick-v0", physics="mjx").sim.mj_model
+    assert flat.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+    assert (flat.opt.solver, flat.opt.iterations, flat.opt.ls_iterations) == (cg[0], 6, 3)
+    assert flat.nhfield == 0
     pyramid = HexapodJoystickRough(dataclasses.replace(env.config, cone="pyramidal"))
     assert pyramid.sim.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
 

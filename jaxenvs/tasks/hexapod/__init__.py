@@ -28,12 +28,13 @@ Physics for MJX speed on CPU (measurements in benchmarks/NOTES.md): the only col
 are six explicit foot-ground pairs (condim 3), added by the scene; joints are unlimited
 (no limit rows: the servo range is the joint range); Euler integration with damping
 implicit; a SPARSE mass matrix. The contact model is the config's (``cone``, ``solver``
-and their iterations, :func:`~.base.contact_edit`): the flat tasks' default is the
-pyramidal cone with a few CG iterations, so that no step calls LAPACK (MJX's Newton
-solver and dense factorisations do); ``cone: elliptic`` makes the contact
-heading-independent, and ``solver: auto`` picks Newton where it is fast (MuJoCo C, MJX
-on an accelerator) and CG for MJX on a CPU. MuJoCo does not evaluate the MJCF's sensors
-in the physics steps (no task reads ``sensordata``).
+and their iterations, :func:`~.base.contact_edit`): by default the elliptic cone, whose
+friction does not depend on the robot's heading, and ``solver: auto``, which picks
+Newton's method where it is fast (MuJoCo C, MJX on an accelerator) and a few CG
+iterations for MJX on a CPU, so that no step there calls LAPACK (MJX's Newton solver and
+dense factorisations do). ``cone: pyramidal`` with ``solver: cg`` is the model the flat
+tasks had before (its friction pyramid's edges are fixed in the floor's frame). MuJoCo
+does not evaluate the MJCF's sensors in the physics steps (no task reads ``sensordata``).
 
 Params (``HexapodParams``, ``JoystickParams``): ``model`` holds MJX model fields
 ``body_mass``, ``body_inertia``, ``dof_damping``, ``actuator_gainprm``,

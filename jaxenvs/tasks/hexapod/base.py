@@ -72,10 +72,11 @@ class HexapodConfig(HexapodRandomization):
 
     Attributes:
       episode_length: 1000 steps of 0.05 s (50 s).
-      cone: the friction cone, ``"pyramidal"`` (its edges fixed in the world's frame: the
-        physics depends on the robot's heading) or ``"elliptic"`` (heading-independent).
-      solver: the contact solver, ``"cg"``, ``"newton"`` or ``"auto"`` (Newton, but CG for
-        MJX on a CPU: :func:`contact_solver`).
+      cone: the friction cone, ``"elliptic"`` (heading-independent; the default) or
+        ``"pyramidal"`` (its edges fixed in the world's frame: the physics depends on the
+        robot's heading).
+      solver: the contact solver, ``"cg"``, ``"newton"`` or ``"auto"`` (the default:
+        Newton, but CG for MJX on a CPU: :func:`contact_solver`).
       solver_iterations, ls_iterations: the CG solve's iterations and line-search steps.
       newton_iterations, newton_ls_iterations: Newton's (4 and 20 converge on the
         hexapod's contacts; with 6 line-search steps MuJoCo C's solve stopped short on
@@ -98,8 +99,8 @@ class HexapodConfig(HexapodRandomization):
     """
 
     episode_length: int = 1000
-    cone: str = "pyramidal"
-    solver: str = "cg"
+    cone: str = "elliptic"
+    solver: str = "auto"
     solver_iterations: int = 6
     ls_iterations: int = 3
     newton_iterations: int = 4

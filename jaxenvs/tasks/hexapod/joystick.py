@@ -18,7 +18,7 @@ so MJX and MuJoCo C physics see the same ones.
 
 Physics as ``HexapodWalk-v0`` (:mod:`jaxenvs.tasks.hexapod.base`): the robot on its
 scene, six foot-ground contact pairs, Euler with implicit damping, the config's contact
-model (``cone``, ``solver`` and their iterations: pyramidal CG by default).
+model (``cone``, ``solver`` and their iterations: elliptic, ``solver: auto``, by default).
 """
 
 from __future__ import annotations

@@ -40,14 +40,15 @@ curriculum; a blind policy and a privileged critic.
   +-1 m. PPO's ``critic_info`` takes scalar ``info`` entries, so the scan is 49 of them.
 * **Metrics.** The joystick's, plus ``level`` (the env's level; the run loop reports its
   mean per chunk in progress.csv, the progress bar and the learning curve) and the scan.
-* **Contact.** The elliptic friction cone (``cone``) and a converged solve, the settings
-  docs/terrain.md measured heading-independent and stable on the heightfield, where the
-  flat tasks' few CG iterations diverge: Newton's method (4 iterations, 20 line-search
-  steps) under MuJoCo C and MJX on an accelerator, and CG (``solver_iterations`` 30,
-  ``ls_iterations`` 10) for MJX on a CPU, where MJX's Newton calls LAPACK's batched
-  Cholesky, which stalls XLA's CPU thread pool (``solver``; both converge to the same
-  contact forces). Only the feet collide with the ground (the torso and shins pass
-  through it; a body that sinks below ``min_height`` above the ground has fallen).
+* **Contact.** The family's elliptic friction cone (``cone``) and ``solver: auto``, the
+  settings docs/terrain.md measured heading-independent and stable on the heightfield:
+  Newton's method (4 iterations, 20 line-search steps) under MuJoCo C and MJX on an
+  accelerator, and CG for MJX on a CPU, where MJX's Newton calls LAPACK's batched
+  Cholesky, which stalls XLA's CPU thread pool; there this task converges CG further
+  (``solver_iterations`` 30, ``ls_iterations`` 10) than the flat tasks, whose few
+  iterations diverge on the heightfield (both solves converge to the same contact
+  forces). Only the feet collide with the ground (the torso and shins pass through it; a
+  body that sinks below ``min_height`` above the ground has fallen).
 * **Episode.** 400 control steps (20 s, legged_gym's episode), four commands.
 """
 
@@ -105,11 +106,9 @@ class JoystickRoughConfig(JoystickConfig):
 
     Attributes:
       episode_length: 400 control steps (20 s).
-      cone: ``"elliptic"`` (heading-independent).
-      solver: ``"auto"``: Newton, but CG for MJX on a CPU
-        (:func:`~jaxenvs.tasks.hexapod.base.contact_solver`).
-      solver_iterations, ls_iterations: the CG solve's, 30 and 10: converged (the flat
-        tasks' few diverge on the heightfield).
+      solver_iterations, ls_iterations: the CG solve's (MJX on a CPU: the family's
+        ``solver: auto``), 30 and 10: converged (the flat tasks' few diverge on the
+        heightfield).
       levels: difficulty levels of the terrain (rows of tiles).
       terrain_types: the terrain type of each column of tiles
         (:data:`jaxenvs.scenes.terrain.TYPES`).
@@ -125,8 +124,6 @@ class JoystickRoughConfig(JoystickConfig):
     """
 
     episode_length: int = 400
-    cone: str = "elliptic"
-    solver: str = "auto"
     solver_iterations: int = 30
     ls_iterations: int = 10
     levels: int = 10
