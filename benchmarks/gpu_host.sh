@@ -1,4 +1,4 @@
-# Sourced by the GPU-host scripts (walker_gpus2.sh, flat_contact.sh): results go to $OUT
+# Sourced by the GPU-host scripts (walker_gpus2.sh, flat_contact.sh, flat_seeds.sh): results go to $OUT
 # (default out/); mujoco's wheels are installed from .whl/ (drop that line where they are
 # installed), the native engine built, and the host's GPUs and cores listed.
 set -u
