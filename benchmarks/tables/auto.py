@@ -320,6 +320,7 @@ TABLES = {
     "c-memory-cpu2-emitters": Table(("c_memory_cpu2_emitters",), c_memory),
     "c-memory-cpu2-pool": Table(("c_memory_cpu2_pool",), c_memory),
     "c-memory-cpu2-house": Table(("c_memory_cpu2_house",), c_memory),
+    "c-memory-cpu2-elliptic": Table(("c_memory_cpu2_elliptic",), c_memory),
     "emitters-ab-cpu2": Table(("compiler_options_ab_cpu2",), emitters_ab),
     "auto-reset-ab-chunks": Table(
         ("auto_reset_ab_cpu16chunks", "auto_reset_ab_cpu2chunks"), reset_ab
