@@ -9,23 +9,12 @@
 # Run from the repository root of a GPU host (benchmarks/gpu_host.sh sets it up).
 source benchmarks/gpu_host.sh
 mkdir -p runs
-train() { # name gpu task seed cores
-  local s=$(date +%s.%N)
-  CUDA_VISIBLE_DEVICES=$2 XDG_CACHE_HOME=/tmp/cache_$1 taskset -c $5 timeout -s TERM 430 python3 -m jaxenvs train $3 \
-    --algo ppo --seed $4 --no-video --no-compile-cache --quiet --out runs/$1 > $OUT/log_$1.txt 2>&1
-  echo "$1 whole $(python3 -c "import time; print(round(time.time() - $s, 1))") s" | tee -a $OUT/log_$1.txt
-  python3 benchmarks/seeds.py slim runs/$1 >> $OUT/log_$1.txt 2>&1
-  (CUDA_VISIBLE_DEVICES=$2 taskset -c $5 timeout 140 python3 benchmarks/seeds.py eval runs/$1 >> $OUT/log_$1.txt 2>&1 || echo "$1 mjx eval failed") &
-  (JAX_PLATFORMS=cpu taskset -c $5 timeout 150 python3 benchmarks/seeds.py eval runs/$1 --physics c >> $OUT/log_$1.txt 2>&1 || echo "$1 c eval failed") &
-  wait
-  echo "$1 done $(python3 -c "import time; print(round(time.time() - $s, 1))") s"
-}
 gpu=0
 chain() { # gpu spec[+spec...]
   local one
   for one in ${2//+/ }; do
     local name=${one%%=*} rest=${one#*=}
-    train $name $1 ${rest%%:*} ${rest#*:} $(($1 * 16))-$(($1 * 16 + 15))
+    train_eval $name $1 $(($1 * 16))-$(($1 * 16 + 15)) ${rest%%:*} --seed ${rest#*:}
   done
 }
 for specs in "$@"; do

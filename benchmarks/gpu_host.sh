@@ -1,6 +1,7 @@
-# Sourced by the GPU-host scripts (walker_gpus2.sh, flat_contact.sh, flat_seeds.sh): results go to $OUT
-# (default out/); mujoco's wheels are installed from .whl/ (drop that line where they are
-# installed), the native engine built, and the host's GPUs and cores listed.
+# Sourced by the GPU-host scripts (walker_gpus2.sh, flat_contact.sh, flat_seeds.sh): results
+# go to $OUT (default out/); mujoco's wheels are installed from .whl/ (drop that line where
+# they are installed), the native engine built, and the host's GPUs and cores listed.
+# train_eval trains one run on one GPU and evaluates it on both engines.
 set -u
 OUT=${OUT:-out}
 mkdir -p "$OUT"
@@ -8,3 +9,17 @@ python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upg
 export PYTHONPATH=/tmp/site:$PWD
 python3 setup.py build_ext --inplace >/dev/null 2>&1 || echo BUILD FAIL
 nvidia-smi -L; nproc
+
+train_eval() { # name gpu cores task [jaxenvs train args...]: cold, cut at $TRAIN_TIMEOUT s
+  local name=$1 gpu=$2 cores=$3 task=$4 s
+  shift 4
+  s=$(date +%s.%N)
+  CUDA_VISIBLE_DEVICES=$gpu XDG_CACHE_HOME=/tmp/cache_$name taskset -c $cores timeout -s TERM ${TRAIN_TIMEOUT:-430} \
+    python3 -m jaxenvs train $task --algo ppo "$@" --no-video --no-compile-cache --quiet --out runs/$name > $OUT/log_$name.txt 2>&1
+  echo "$name whole $(python3 -c "import time; print(round(time.time() - $s, 1))") s" | tee -a $OUT/log_$name.txt
+  python3 benchmarks/seeds.py slim runs/$name >> $OUT/log_$name.txt 2>&1
+  (CUDA_VISIBLE_DEVICES=$gpu taskset -c $cores timeout 140 python3 benchmarks/seeds.py eval runs/$name >> $OUT/log_$name.txt 2>&1 || echo "$name mjx eval failed") &
+  (JAX_PLATFORMS=cpu taskset -c $cores timeout 150 python3 benchmarks/seeds.py eval runs/$name --physics c >> $OUT/log_$name.txt 2>&1 || echo "$name c eval failed") &
+  wait
+  echo "$name done $(python3 -c "import time; print(round(time.time() - $s, 1))") s"
+}
