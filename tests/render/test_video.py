@@ -145,9 +145,14 @@ def test_the_callers_frame_generator_is_closed_when_a_write_fails(tmp_path):
 
 
 def test_an_encoder_gone_before_the_frames_fail_leaves_no_pipe_open(tmp_path, monkeypatch):
+    """The encoder exits after the first frame reached it (its first byte read: the
+    9 kB frame is all in the pipe by then), then the frames fail: their error surfaces,
+    and no pipe, warning or file is left. (An encoder that exited before the first frame
+    was written would fail the write itself, a VideoError: a race this test once lost
+    under load.)"""
     gone = tmp_path / "gone"
     exe = tmp_path / "fake-ffmpeg"
-    exe.write_text(f"#!/bin/sh\ntouch {gone}\nexit 3\n")
+    exe.write_text(f"#!/bin/sh\nhead -c 1 >/dev/null\ntouch {gone}\nexit 3\n")
     exe.chmod(exe.stat().st_mode | stat.S_IXUSR)
     monkeypatch.setenv("IMAGEIO_FFMPEG_EXE", str(exe))
 
