@@ -2,7 +2,8 @@
 
 Each batch size steps ``HexapodJoystick-v0`` (flat) and ``HexapodJoystickRough-v0`` (its
 default terrain, the contact solve its config picks for the engine: ``solver: auto``), and
-with ``--solvers`` the rough task with each named solver too, side by side: a jitted
+with ``--solvers`` the rough task with each named solver and with ``--max-contacts`` with
+each MJX contact budget (``max_contacts``; 0: every slot) too, side by side: a jitted
 ``lax.scan`` of ``--steps`` auto-resetting batched steps with uniform random actions, the
 state donated, timed over ``--rounds`` rounds interleaved across the variants (median).
 Rows: one per variant and batch, with ``x_flat``, its rate over the flat task's at that
@@ -11,6 +12,7 @@ batch in the same process.
     python benchmarks/terrain_throughput.py --envs 1024 --physics c --json terrain_throughput_cpu2
     python benchmarks/terrain_throughput.py --envs 8192 65536 --solvers cg \\
         --json terrain_throughput_gpu
+    python benchmarks/terrain_throughput.py --envs 8192 65536 --physics mjx --max-contacts 0
 """
 
 from __future__ import annotations
@@ -45,10 +47,14 @@ def rollout(
     return jax.jit(run, donate_argnums=0), jax.jit(benv.reset)(jax.random.key(0))
 
 
-def measure(n: int, steps: int, rounds: int, physics: str, solvers: list[str]) -> list[dict]:
-    """Rows for batch ``n``: flat, rough (``solver: auto``), rough with each of ``solvers``."""
+def measure(
+    n: int, steps: int, rounds: int, physics: str, solvers: list[str], caps: list[int]
+) -> list[dict]:
+    """Rows for batch ``n``: flat, rough (its config's defaults), rough with each of
+    ``solvers`` and with each of ``caps`` as its ``max_contacts`` (MJX's contact budget)."""
     variants = [("flat", FLAT, {}), ("rough", ROUGH, {})]
     variants += [(f"rough_{s}", ROUGH, {"solver": s}) for s in solvers]
+    variants += [(f"rough_contacts{c}", ROUGH, {"max_contacts": c}) for c in caps]
     runs, rows = {}, {}
     for name, env_id, overrides in variants:
         fn, state = rollout(env_id, n, steps, physics, **overrides)
@@ -88,12 +94,21 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--physics", default="auto", choices=("auto", "mjx", "c"))
     parser.add_argument("--solvers", nargs="*", default=[], help="rough also with these")
+    parser.add_argument(
+        "--max-contacts",
+        type=int,
+        nargs="*",
+        default=[],
+        help="rough also with these max_contacts (0: every contact slot)",
+    )
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
     rows = [
         row
         for n in args.envs
-        for row in measure(n, args.steps, args.rounds, args.physics, args.solvers)
+        for row in measure(
+            n, args.steps, args.rounds, args.physics, args.solvers, args.max_contacts
+        )
     ]
     if args.json:
         title = "HexapodJoystickRough-v0's env steps/s over HexapodJoystick-v0's, same process"

@@ -22,6 +22,8 @@ import mujoco
 
 #: the floor's friction (sliding, torsional, rolling) and the default ground's size (m)
 FLOOR_FRICTION = (1.0, 0.005, 0.0001)
+#: the name of the model ``<numeric>`` MJX reads as its contact budget (``Scene.max_contacts``)
+MAX_CONTACTS = "max_contact_points"
 
 
 class Ground(Protocol):
@@ -116,6 +118,11 @@ class Scene:
         (sliding on both tangent axes, torsional, rolling on both axes).
       markers: the task's markers (mocap bodies, in ``mocap_pos`` order).
       light: a light 4 m above the origin, pointing down.
+      max_contacts: under MJX, the most contacts a step keeps (the deepest; MJX's
+        ``max_contact_points``, a ``<numeric>`` of the model), 0 for every contact slot
+        of the scene's pairs (each pair has as many slots as its collision function
+        returns: 1 for a sphere on a plane, 4 for a sphere on a heightfield). MuJoCo C
+        keeps every contact whatever this says.
     """
 
     robot: Path
@@ -123,6 +130,11 @@ class Scene:
     contacts: tuple[str, ...] = ()
     markers: tuple[Marker, ...] = ()
     light: bool = True
+    max_contacts: int = 0
+
+    def __post_init__(self) -> None:
+        if self.max_contacts < 0:
+            raise ValueError(f"max_contacts must be >= 0, got {self.max_contacts}")
 
     @property
     def name(self) -> str:
@@ -158,7 +170,9 @@ class Scene:
                 geomname2=geom,
                 friction=[slide, slide, torsion, roll, roll],
             )
+        if self.max_contacts:
+            spec.add_numeric(name=MAX_CONTACTS, data=[float(self.max_contacts)])
         return spec
 
 
-__all__ = ["FLOOR_FRICTION", "Flat", "Ground", "Marker", "Scene"]
+__all__ = ["FLOOR_FRICTION", "MAX_CONTACTS", "Flat", "Ground", "Marker", "Scene"]

@@ -6,10 +6,11 @@ import dataclasses
 
 import mujoco
 import numpy as np
+import pytest
 
 import jaxenvs
 from jaxenvs.robots.hexapod import Hexapod
-from jaxenvs.scenes import Flat, Marker, Scene
+from jaxenvs.scenes import MAX_CONTACTS, Flat, Marker, Scene
 
 
 def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, n: int) -> list[str]:
@@ -49,3 +50,15 @@ def test_a_scene_is_a_frozen_value():
     assert scene == Hexapod().scene() and hash(scene) == hash(Hexapod().scene())
     assert dataclasses.replace(scene, light=False).spec().compile().nlight == 0
     assert str(scene) == "hexapod.xml on flat"
+
+
+def test_a_scene_sets_mjx_s_contact_budget():
+    """``max_contacts`` is the model's ``max_contact_points`` numeric (MJX keeps that many
+    of a step's deepest contacts); 0 writes none, a negative one is refused."""
+    capped = Hexapod().scene(max_contacts=8).spec().compile()
+    assert capped.nnumeric == 1
+    assert mujoco.mj_id2name(capped, mujoco.mjtObj.mjOBJ_NUMERIC, 0) == MAX_CONTACTS
+    np.testing.assert_array_equal(capped.numeric_data, [8.0])
+    assert Hexapod().scene().spec().compile().nnumeric == 0
+    with pytest.raises(ValueError, match="max_contacts must be >= 0"):
+        Scene(Hexapod.xml, max_contacts=-1)

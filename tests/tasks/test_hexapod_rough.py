@@ -25,6 +25,7 @@ import jaxenvs
 from jaxenvs.config import ConfigError
 from jaxenvs.core import BatchedEnv
 from jaxenvs.run import results
+from jaxenvs.scenes import MAX_CONTACTS
 from jaxenvs.tasks.hexapod.rough import (
     SCAN_KEYS,
     HexapodJoystickRough,
@@ -90,6 +91,19 @@ def test_the_terrain_is_the_ground_with_the_rough_contact_setting(env) -> None:
     assert flat.nhfield == 0
     pyramid = HexapodJoystickRough(dataclasses.replace(env.config, cone="pyramidal"))
     assert pyramid.sim.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
+
+
+def test_mjx_keeps_the_eight_deepest_contacts(env) -> None:
+    """The rough task's MJX model carries its contact budget (8 of the feet's 24 slots on
+    the heightfield: ``max_contacts``); the flat joystick's carries none, and 0 lifts it."""
+    numeric = mujoco.mjtObj.mjOBJ_NUMERIC
+    rough = HexapodJoystickRough(dataclasses.replace(env.config, physics="mjx")).sim
+    budget = mujoco.mj_name2id(rough.physics_mj_model, numeric, MAX_CONTACTS)
+    assert budget >= 0 and rough.physics_mj_model.numeric_data[budget] == 8
+    flat = jaxenvs.make("HexapodJoystick-v0", physics="mjx").sim.physics_mj_model
+    assert mujoco.mj_name2id(flat, numeric, MAX_CONTACTS) == -1
+    free = HexapodJoystickRough(dataclasses.replace(env.config, max_contacts=0)).sim
+    assert mujoco.mj_name2id(free.physics_mj_model, numeric, MAX_CONTACTS) == -1
 
 
 def test_first_levels_and_columns(env) -> None:

@@ -179,10 +179,21 @@ class Hexapod(_HexapodServos):
     #: :data:`LEGS` order (``pair_friction``'s order)
     feet = tuple(f"{leg}_foot" for leg in LEGS)
 
-    def scene(self, ground: Ground | None = None, markers: tuple[Marker, ...] = ()) -> Scene:
+    def scene(
+        self,
+        ground: Ground | None = None,
+        markers: tuple[Marker, ...] = (),
+        max_contacts: int = 0,
+    ) -> Scene:
         """The hexapod standing on ``ground`` (default: a flat floor), its feet paired with
-        it, with a task's ``markers``."""
-        return Scene(self.xml, ground or Flat(), contacts=self.feet, markers=markers)
+        it, with a task's ``markers`` and MJX's contact budget (``Scene.max_contacts``)."""
+        return Scene(
+            self.xml,
+            ground or Flat(),
+            contacts=self.feet,
+            markers=markers,
+            max_contacts=max_contacts,
+        )
 
     def qpos(self, pos: jax.Array, quat: jax.Array, joints: jax.Array) -> jax.Array:
         """The state's positions: torso position (3, m), orientation (4, w x y z), joint

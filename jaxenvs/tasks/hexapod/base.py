@@ -81,6 +81,9 @@ class HexapodConfig(HexapodRandomization):
       newton_iterations, newton_ls_iterations: Newton's (4 and 20 converge on the
         hexapod's contacts; with 6 line-search steps MuJoCo C's solve stopped short on
         some randomised robots).
+      max_contacts: under MJX, the most contacts a step keeps, the deepest (0: all of
+        the feet's contact slots, one a foot on a plane, four on a heightfield; MuJoCo C
+        keeps every contact): ``jaxenvs.scenes.Scene.max_contacts``.
       energy_weight: weight of the servos' mechanical power, sum |torque x joint speed| (W).
       alive_bonus: reward per step while not fallen.
       tilt_weight: weight of the tilt penalty ``1 - up_z`` (0 upright, 0.29 at 45 degrees),
@@ -105,6 +108,7 @@ class HexapodConfig(HexapodRandomization):
     ls_iterations: int = 3
     newton_iterations: int = 4
     newton_ls_iterations: int = 20
+    max_contacts: int = 0
     energy_weight: float = 0.002
     alive_bonus: float = 0.05
     tilt_weight: float = 0.0
@@ -138,6 +142,7 @@ class HexapodConfig(HexapodRandomization):
             require(getattr(self, name) >= 0, name, "must be >= 0")
         require(0 < self.min_height < self.init_height, "min_height", "must be in (0, init_height)")
         require(-1 <= self.min_upright < 1, "min_upright", "must be in [-1, 1)")
+        require(self.max_contacts >= 0, "max_contacts", "must be >= 0 (0: no limit)")
 
 
 def contact_solver(solver: str, physics: str, backend: str | None = None) -> str:
@@ -213,7 +218,7 @@ class HexapodTask(RobotTask, Env[ConfigT], Generic[ConfigT]):
             config.timestep,
             config.substeps,
             edit=self.model_edit(config),
-            scene=self.robot.scene(ground, markers),
+            scene=self.robot.scene(ground, markers, config.max_contacts),
         )
         super().__init__(config, sim)
 
