@@ -93,6 +93,23 @@ def test_the_terrain_is_the_ground_with_the_rough_contact_setting(env) -> None:
     assert pyramid.sim.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
 
 
+def test_no_episode_walks_off_the_field(env) -> None:
+    """From every tile's centre, an episode at the fastest command (both speeds at their
+    range's end, in a straight line, for the whole episode) stays on the heightfield."""
+    c, t = env.config, env.terrain
+    lo, hi = env.command_range
+    reach = float(np.hypot(max(abs(lo[0]), hi[0]), max(abs(lo[1]), hi[1])))
+    reach *= c.episode_length * env.control_dt
+    rows, cols = t.heights.shape
+    x0, y0 = t.corner[0], t.corner[1]
+    x1, y1 = x0 + (cols - 1) * t.config.spacing, y0 + (rows - 1) * t.config.spacing
+    centres = t.origins[..., :2].reshape(-1, 2)
+    margin = np.minimum.reduce(
+        [centres[:, 0] - x0, x1 - centres[:, 0], centres[:, 1] - y0, y1 - centres[:, 1]]
+    )
+    assert reach > 9.0 and margin.min() > reach
+
+
 def test_mjx_keeps_the_eight_deepest_contacts(env) -> None:
     """The rough task's MJX model carries its contact budget (8 of the feet's 24 slots on
     the heightfield: ``max_contacts``); the flat joystick's carries none, and 0 lifts it."""
@@ -273,6 +290,7 @@ def test_the_observation_is_blind(env) -> None:
         ("spawn_types", ("lava",)),
         ("max_init_level", 4),
         ("tile_size", 3.01),
+        ("terrain_border", 0.01),
         ("terrain_types", ("flat", "moon")),
     ],
 )

@@ -3,9 +3,9 @@ difficulty levels x terrain types (:mod:`jaxenvs.scenes.terrain`), with a per-en
 curriculum; a blind policy and a privileged critic.
 
 * **Ground.** The generated terrain of the config's ``levels``, ``terrain_types``,
-  ``tile_size`` and ``terrain_seed`` (the other generator settings at their defaults:
-  docs/terrain.md) is the scene's ground; the six feet are paired with it. The terrain is
-  generated once per process and config (:func:`terrain_of`).
+  ``tile_size``, ``terrain_border`` and ``terrain_seed`` (the other generator settings at
+  their defaults: docs/terrain.md) is the scene's ground; the six feet are paired with it.
+  The terrain is generated once per process and config (:func:`terrain_of`).
 * **Curriculum.** Each env's carry (:class:`RoughCarry`) holds its level and its tile's
   column (its terrain type). At :meth:`~jaxenvs.core.Env.reset` the level is drawn
   uniformly in ``min_init_level..max_init_level`` and the column among the columns of
@@ -50,8 +50,8 @@ curriculum; a blind policy and a privileged critic.
   forces). Only the feet collide with the ground (the torso and shins pass through it; a
   body that sinks below ``min_height`` above the ground has fallen). MJX gives a sphere on
   a heightfield four contact slots, 24 for the six feet (six on the plane), and its solve
-  costs with every slot; under MJX a step keeps the 8 deepest (``max_contacts``): 1.4x
-  and 1.6x the rate of all 24 at 8,192 and 32,768 envs on one H200 (benchmarks/NOTES.md).
+  costs with every slot; under MJX a step keeps the 8 deepest (``max_contacts``): 1.40x
+  and 1.57x the rate of all 24 at 8,192 and 65,536 envs on one H200 (docs/terrain.md).
   MuJoCo C keeps every contact.
 * **Episode.** 400 control steps (20 s, legged_gym's episode), four commands.
 """
@@ -119,6 +119,10 @@ class JoystickRoughConfig(JoystickConfig):
       terrain_types: the terrain type of each column of tiles
         (:data:`jaxenvs.scenes.terrain.TYPES`).
       tile_size: side of a tile (m; a multiple of the terrain's 2.5 cm spacing).
+      terrain_border: the flat margin around the tiles (m): 8 m, so that from any tile's
+        centre an episode at the fastest command (0.47 m/s for 20 s: 9.4 m) ends on the
+        ground (with a 1 m margin, robots on the outer tiles walked off the field's edge
+        and fell).
       terrain_seed: the terrain generator's seed.
       min_init_level, max_init_level: an env's first level is uniform in this range.
       spawn_types: the terrain types an env may be given (empty: every column).
@@ -136,6 +140,7 @@ class JoystickRoughConfig(JoystickConfig):
     levels: int = 10
     terrain_types: tuple[str, ...] = TYPES
     tile_size: float = 3.0
+    terrain_border: float = 8.0
     terrain_seed: int = 0
     min_init_level: int = 0
     max_init_level: int = 2
@@ -152,6 +157,7 @@ class JoystickRoughConfig(JoystickConfig):
             levels=self.levels,
             types=self.terrain_types,
             tile_size=self.tile_size,
+            border=self.terrain_border,
             seed=self.terrain_seed,
         )
 
@@ -160,10 +166,11 @@ class JoystickRoughConfig(JoystickConfig):
         require(self.levels >= 1, "levels", "must be >= 1")
         unknown = sorted(set(self.terrain_types) - set(TYPES))
         require(bool(self.terrain_types) and not unknown, "terrain_types", f"unknown {unknown}")
-        try:  # what remains to check is the tile's size against the sample spacing
+        try:  # what remains: the tile's size and the border against the sample spacing
             self.terrain_config()
-        except ValueError as err:
-            require(False, "tile_size", str(err))
+        except ValueError as err:  # TerrainConfig.border is this config's terrain_border
+            field = "terrain_border" if "TerrainConfig.border" in str(err) else "tile_size"
+            require(False, field, str(err))
         require(
             0 <= self.min_init_level <= self.max_init_level < self.levels,
             "max_init_level",
