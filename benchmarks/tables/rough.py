@@ -97,6 +97,8 @@ def rough_tracking(recs: list[Rec]) -> Cells:
 
 
 TABLES = {
+    "rough-training-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_training),
+    "rough-tracking-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_tracking),
     "rough-training": Table(("ppo_joystick_rough_seeds_h200",), rough_training),
     "rough-tracking": Table(("ppo_joystick_rough_seeds_h200",), rough_tracking),
     "rough-training-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_training),
