@@ -99,7 +99,8 @@ def main() -> None:
         type=int,
         nargs="*",
         default=[],
-        help="rough also with these max_contacts (0: every contact slot)",
+        help="rough also with these max_contacts (0: every contact slot; MJX only, "
+        "MuJoCo C keeps every contact)",
     )
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()

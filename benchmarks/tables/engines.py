@@ -190,8 +190,8 @@ def terrain_throughput_contacts(recs: list[Rec]) -> Cells:
     (rec,) = recs
 
     def cells(r: Row) -> list[str]:
-        flat = r["variant"] == "flat"
-        kept = "-" if flat else "all 24" if r.get("max_contacts") == 0 else "8 (the config's)"
+        flat, cap = r["variant"] == "flat", r.get("max_contacts")
+        kept = "-" if flat else "the config's (8)" if cap is None else str(cap or "all 24")
         return [
             r["task"],
             kept,

@@ -118,11 +118,12 @@ class Scene:
         (sliding on both tangent axes, torsional, rolling on both axes).
       markers: the task's markers (mocap bodies, in ``mocap_pos`` order).
       light: a light 4 m above the origin, pointing down.
-      max_contacts: under MJX, the most contacts a step keeps (the deepest; MJX's
-        ``max_contact_points``, a ``<numeric>`` of the model), 0 for every contact slot
-        of the scene's pairs (each pair has as many slots as its collision function
-        returns: 1 for a sphere on a plane, 4 for a sphere on a heightfield). MuJoCo C
-        keeps every contact whatever this says.
+      max_contacts: under MJX, the most contacts a step keeps of each contact dimension
+        (the deepest; MJX's ``max_contact_points``, a ``<numeric>`` of the model: with
+        pairs of one ``condim``, as a robot's feet on its ground, the step's), 0 for
+        every contact slot of the scene's pairs (each pair has as many slots as its
+        collision function returns: 1 for a sphere on a plane, 4 for a sphere on a
+        heightfield). MuJoCo C keeps every contact whatever this says.
     """
 
     robot: Path

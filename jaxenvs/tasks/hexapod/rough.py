@@ -51,8 +51,8 @@ curriculum; a blind policy and a privileged critic.
   body that sinks below ``min_height`` above the ground has fallen). MJX gives a sphere on
   a heightfield four contact slots, 24 for the six feet (six on the plane), and its solve
   costs with every slot; under MJX a step keeps the 8 deepest (``max_contacts``): 1.40x
-  and 1.57x the rate of all 24 at 8,192 and 65,536 envs on one H200 (docs/terrain.md).
-  MuJoCo C keeps every contact.
+  and 1.57x the rate of all 24 at 8,192 and 65,536 envs on one H200 (docs/terrain.md;
+  measured with the terrain's earlier 1 m margin). MuJoCo C keeps every contact.
 * **Episode.** 400 control steps (20 s, legged_gym's episode), four commands.
 """
 
@@ -119,10 +119,10 @@ class JoystickRoughConfig(JoystickConfig):
       terrain_types: the terrain type of each column of tiles
         (:data:`jaxenvs.scenes.terrain.TYPES`).
       tile_size: side of a tile (m; a multiple of the terrain's 2.5 cm spacing).
-      terrain_border: the flat margin around the tiles (m): 8 m, so that from any tile's
-        centre an episode at the fastest command (0.47 m/s for 20 s: 9.4 m) ends on the
-        ground (with a 1 m margin, robots on the outer tiles walked off the field's edge
-        and fell).
+      terrain_border: the flat margin around the tiles (m): 10 m, so that from any
+        tile's centre an episode at the fastest command (0.47 m/s for 20 s: 9.4 m) ends
+        with the feet (within 0.3 m of the body) 1.8 m inside the field (with a 1 m margin,
+        robots on the outer tiles walked off the field's edge and fell).
       terrain_seed: the terrain generator's seed.
       min_init_level, max_init_level: an env's first level is uniform in this range.
       spawn_types: the terrain types an env may be given (empty: every column).
@@ -140,7 +140,7 @@ class JoystickRoughConfig(JoystickConfig):
     levels: int = 10
     terrain_types: tuple[str, ...] = TYPES
     tile_size: float = 3.0
-    terrain_border: float = 8.0
+    terrain_border: float = 10.0
     terrain_seed: int = 0
     min_init_level: int = 0
     max_init_level: int = 2
