@@ -227,5 +227,8 @@ TABLES = {
     "terrain-throughput-contacts-h200": Table(
         ("terrain_throughput_h200_max_contacts",), terrain_throughput_contacts
     ),
+    "terrain-throughput-margin10-h200": Table(
+        ("terrain_throughput_h200_margin10",), terrain_throughput_contacts
+    ),
     "engines-cpu16-per-device": Table(("engines_cpu16_cartpole_reacher_per_device",), cpu16_rows),
 }
