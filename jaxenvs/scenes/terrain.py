@@ -52,7 +52,16 @@ import numpy as np
 
 from jaxenvs.scenes.height import HeightField
 
-__all__ = ["FRICTION", "REACHABLE_STEP", "TYPES", "Mjcf", "Terrain", "TerrainConfig", "generate"]
+__all__ = [
+    "FRICTION",
+    "REACHABLE_STEP",
+    "TYPES",
+    "Mjcf",
+    "Terrain",
+    "TerrainConfig",
+    "TerrainConfigError",
+    "generate",
+]
 
 #: the terrain types, in the default order of the columns
 TYPES = tuple(
@@ -158,9 +167,17 @@ class TerrainConfig:
         return float(easy + self.difficulty(level) * (hard - easy))
 
 
+class TerrainConfigError(ValueError):
+    """A :class:`TerrainConfig` field out of range; ``field`` names it."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"TerrainConfig.{field}: {message}")
+        self.field = field
+
+
 def _check(ok: bool, name: str, message: str) -> None:
     if not ok:
-        raise ValueError(f"TerrainConfig.{name}: {message}")
+        raise TerrainConfigError(name, message)
 
 
 class Mjcf(NamedTuple):

@@ -72,7 +72,7 @@ from flax import struct
 from jaxenvs.config import require
 from jaxenvs.core import State
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
-from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, generate
+from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, TerrainConfigError, generate
 from jaxenvs.tasks.hexapod.joystick import (
     HexapodJoystick,
     JoystickConfig,
@@ -100,6 +100,8 @@ SCAN_OFFSETS = scan_grid(7, 7, 0.07)
 SCAN_KEYS = tuple(f"scan_{i:02d}" for i in range(len(SCAN_OFFSETS)))
 #: folded into a finished episode's key for the draw of a level past the top
 _LEVEL_SALT = 0x6C76
+#: this config's name of each generator field it sets under another name
+_TERRAIN_FIELDS = {"types": "terrain_types", "border": "terrain_border", "seed": "terrain_seed"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,9 +170,8 @@ class JoystickRoughConfig(JoystickConfig):
         require(bool(self.terrain_types) and not unknown, "terrain_types", f"unknown {unknown}")
         try:  # what remains: the tile's size and the border against the sample spacing
             self.terrain_config()
-        except ValueError as err:  # TerrainConfig.border is this config's terrain_border
-            field = "terrain_border" if "TerrainConfig.border" in str(err) else "tile_size"
-            require(False, field, str(err))
+        except TerrainConfigError as err:
+            require(False, _TERRAIN_FIELDS.get(err.field, err.field), str(err))
         require(
             0 <= self.min_init_level <= self.max_init_level < self.levels,
             "max_init_level",
