@@ -73,6 +73,7 @@ from jaxenvs.config import require
 from jaxenvs.core import State
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, TerrainConfigError, generate
+from jaxenvs.tasks.hexapod.base import HexapodTask
 from jaxenvs.tasks.hexapod.joystick import (
     HexapodJoystick,
     JoystickConfig,
@@ -91,6 +92,8 @@ __all__ = [
     "JoystickRoughConfig",
     "RoughCarry",
     "RoughExtras",
+    "TerrainFields",
+    "TerrainTask",
     "terrain_of",
 ]
 
@@ -105,40 +108,26 @@ _TERRAIN_FIELDS = {"types": "terrain_types", "border": "terrain_border", "seed":
 
 
 @dataclasses.dataclass(frozen=True)
-class JoystickRoughConfig(JoystickConfig):
-    """``HexapodJoystickRough-v0`` (the joystick's fields:
-    :class:`~jaxenvs.tasks.hexapod.joystick.JoystickConfig`; the module docstring says how
-    each is used).
+class TerrainFields:
+    """The config fields of a hexapod task on a generated terrain with a level curriculum
+    (:class:`TerrainTask`), mixed into the task's own config (which calls
+    :meth:`validate_terrain` from its ``validate``).
 
     Attributes:
-      episode_length: 400 control steps (20 s).
-      solver_iterations, ls_iterations: the CG solve's (MJX on a CPU: the family's
-        ``solver: auto``), 30 and 10: converged (the flat tasks' few diverge on the
-        heightfield).
-      max_contacts: under MJX, the 8 deepest contacts of a step are kept (of the feet's
-        24 slots on the heightfield; module docstring).
       levels: difficulty levels of the terrain (rows of tiles).
       terrain_types: the terrain type of each column of tiles
         (:data:`jaxenvs.scenes.terrain.TYPES`).
       tile_size: side of a tile (m; a multiple of the terrain's 2.5 cm spacing).
       terrain_border: the flat margin around the tiles (m): 10 m, so that from any
-        tile's centre an episode at the fastest command (0.47 m/s for 20 s: 9.4 m) ends
-        with the feet (within 0.3 m of the body) 1.8 m inside the field (with a 1 m margin,
-        robots on the outer tiles walked off the field's edge and fell).
+        tile's centre an episode at the joystick's fastest command (0.47 m/s for 20 s:
+        9.4 m) ends with the feet (within 0.3 m of the body) 1.8 m inside the field (with
+        a 1 m margin, robots on the outer tiles walked off the field's edge and fell).
       terrain_seed: the terrain generator's seed.
       min_init_level, max_init_level: an env's first level is uniform in this range.
       spawn_types: the terrain types an env may be given (empty: every column).
       curriculum: move the levels after each episode (False: they stay as drawn).
-      promote_fraction: promote when the body ended farther than this fraction of
-        ``tile_size`` from its spawn ...
-      demote_fraction: ... else demote when it covered less than this fraction of the
-        distance its commands asked for.
     """
 
-    episode_length: int = 400
-    solver_iterations: int = 30
-    ls_iterations: int = 10
-    max_contacts: int = 8
     levels: int = 10
     terrain_types: tuple[str, ...] = TYPES
     tile_size: float = 3.0
@@ -148,10 +137,6 @@ class JoystickRoughConfig(JoystickConfig):
     max_init_level: int = 2
     spawn_types: tuple[str, ...] = ()
     curriculum: bool = True
-    promote_fraction: float = 0.5
-    demote_fraction: float = 0.5
-
-    nonnegative: ClassVar[tuple[str, ...]] = (*JoystickConfig.nonnegative, "demote_fraction")
 
     def terrain_config(self) -> TerrainConfig:
         """The terrain generator's config (its other fields at their defaults)."""
@@ -163,8 +148,8 @@ class JoystickRoughConfig(JoystickConfig):
             seed=self.terrain_seed,
         )
 
-    def validate(self) -> None:
-        super().validate()
+    def validate_terrain(self) -> None:
+        """A :class:`~jaxenvs.config.ConfigError` naming the first bad terrain field."""
         require(self.levels >= 1, "levels", "must be >= 1")
         unknown = sorted(set(self.terrain_types) - set(TYPES))
         require(bool(self.terrain_types) and not unknown, "terrain_types", f"unknown {unknown}")
@@ -179,6 +164,39 @@ class JoystickRoughConfig(JoystickConfig):
         )
         foreign = sorted(set(self.spawn_types) - set(self.terrain_types))
         require(not foreign, "spawn_types", f"{foreign} not among terrain_types")
+
+
+@dataclasses.dataclass(frozen=True)
+class JoystickRoughConfig(JoystickConfig, TerrainFields):
+    """``HexapodJoystickRough-v0`` (the joystick's fields:
+    :class:`~jaxenvs.tasks.hexapod.joystick.JoystickConfig`; the terrain's:
+    :class:`TerrainFields`; the module docstring says how each is used).
+
+    Attributes:
+      episode_length: 400 control steps (20 s).
+      solver_iterations, ls_iterations: the CG solve's (MJX on a CPU: the family's
+        ``solver: auto``), 30 and 10: converged (the flat tasks' few diverge on the
+        heightfield).
+      max_contacts: under MJX, the 8 deepest contacts of a step are kept (of the feet's
+        24 slots on the heightfield; module docstring).
+      promote_fraction: promote when the body ended farther than this fraction of
+        ``tile_size`` from its spawn ...
+      demote_fraction: ... else demote when it covered less than this fraction of the
+        distance its commands asked for.
+    """
+
+    episode_length: int = 400
+    solver_iterations: int = 30
+    ls_iterations: int = 10
+    max_contacts: int = 8
+    promote_fraction: float = 0.5
+    demote_fraction: float = 0.5
+
+    nonnegative: ClassVar[tuple[str, ...]] = (*JoystickConfig.nonnegative, "demote_fraction")
+
+    def validate(self) -> None:
+        super().validate()
+        self.validate_terrain()
         require(self.promote_fraction > 0, "promote_fraction", "must be > 0")
 
 
@@ -215,32 +233,44 @@ class RoughExtras(JoystickExtras):
     commanded: jax.Array
 
 
-class HexapodJoystickRough(HexapodJoystick):
-    """``HexapodJoystickRough-v0`` (the module docstring): the joystick on a terrain with
-    a level curriculum. Observation, action, command and reward as ``HexapodJoystick-v0``;
-    heights above the ground; ``level`` and the height scan among the metrics."""
+class TerrainTask(HexapodTask[Any]):
+    """What a hexapod task on a generated terrain with a level curriculum adds to its
+    flat task (a mixin listed before it: ``class T(TerrainTask, FlatTask)``): the terrain
+    as the scene's ground, the curriculum's carry (:class:`RoughCarry`) and its first
+    draw, the level rule's bookkeeping (:meth:`next_level`), the start moved onto the
+    env's tile, heights above the ground under the body and the critic's height scan.
 
-    metric_keys = (*HexapodJoystick.metric_keys, "level", *SCAN_KEYS)  # type: ignore[assignment]
-    config: JoystickRoughConfig
+    The task's ``__init__`` calls :meth:`setup_terrain` with its config (a
+    :class:`TerrainFields`) and passes the terrain it returns to the flat task's
+    ``__init__`` as the ground; it defines ``_carry_update`` with its own promotion and
+    demotion test.
+    """
 
-    def __init__(self, config: JoystickRoughConfig | None = None) -> None:
-        config = config or JoystickRoughConfig()
-        #: the terrain the robot walks on (the scene's ground)
+    #: the terrain the robot walks on (the scene's ground)
+    terrain: Terrain
+    #: the heightfield the height queries read
+    field: HeightField
+
+    def setup_terrain(self, config: TerrainFields) -> Terrain:
+        """Generate (or reuse: :func:`terrain_of`) ``config``'s terrain and keep what the
+        programs read of it: the heightfield, the tiles' origins and the columns an env
+        may be given, each on the default device once (one constant of every compiled
+        program, however many queries read it). Returns the terrain, the scene's ground."""
+        self._terrain_fields = config
         self.terrain = terrain_of(config.terrain_config())
-        super().__init__(config, self.terrain)
-        #: the heightfield the height queries read, on the default device once (one
-        #: constant of every compiled program, however many queries read it)
         self.field = HeightField(*(jnp.asarray(x) for x in self.terrain.field()))
         self._origins = jnp.asarray(self.terrain.origins)
         allowed = [
             i for i, t in enumerate(self.terrain.types) if t in (config.spawn_types or TYPES)
         ]
         self._spawn_columns = jnp.asarray(allowed, jnp.int32)
+        return self.terrain
 
-    def model_edit(self, config: JoystickConfig) -> Callable[[mujoco.MjModel], None]:
-        """The contact model (the base's: :func:`~jaxenvs.tasks.hexapod.base.contact_edit`)
-        and a brighter headlight (drawing only: the scene's one light is above the world's
-        origin, and most tiles are metres away)."""
+    def model_edit(self, config: Any) -> Callable[[mujoco.MjModel], None]:
+        """The flat task's edit (the contact model:
+        :func:`~jaxenvs.tasks.hexapod.base.contact_edit`) and a brighter headlight
+        (drawing only: the scene's one light is above the world's origin, and most tiles
+        are metres away)."""
         contact = super().model_edit(config)
 
         def edit(model: mujoco.MjModel) -> None:
@@ -251,11 +281,11 @@ class HexapodJoystickRough(HexapodJoystick):
         return edit
 
     # ------------------------------------------------------------------ curriculum
-    def _carry_init(self, key: jax.Array, params: JoystickParams) -> RoughCarry:
+    def _carry_init(self, key: jax.Array, params: Any) -> RoughCarry:
         """A level uniform in ``min_init_level..max_init_level``, a column uniform among
         the ``spawn_types`` columns."""
         del params
-        c = self.config
+        c = self._terrain_fields
         u = jax.random.uniform(key, (2,))
         span = c.max_init_level - c.min_init_level + 1
         level = c.min_init_level + jnp.minimum(jnp.floor(u[0] * span), span - 1)
@@ -263,20 +293,17 @@ class HexapodJoystickRough(HexapodJoystick):
         pick = jnp.minimum(jnp.floor(u[1] * n), n - 1).astype(jnp.int32)
         return RoughCarry(level=level.astype(jnp.int32), column=self._spawn_columns[pick])
 
-    def _carry_update(self, carry: RoughCarry, final: State, params: JoystickParams) -> RoughCarry:
-        """The next level by the rule of the module docstring, from the finished
-        episode's last state ``final``."""
-        del params
-        c = self.config
+    def next_level(
+        self, carry: RoughCarry, up: jax.Array, down: jax.Array, final: State
+    ) -> RoughCarry:
+        """``carry`` after an episode (its last state ``final``) that earned a promotion
+        (``up``) or a demotion (``down``, read only where not ``up``): the level one up or
+        down, kept at 0 from below; an env promoted past the top level goes to a level
+        drawn uniformly over all of them. Unchanged without ``curriculum``."""
+        c = self._terrain_fields
         if not c.curriculum:
             return carry
-        extras: RoughExtras = final.extras
-        walked = jnp.linalg.norm(final.data.qpos[:2] - extras.spawn)
-        # an episode that ended early is compared with its commands over a whole episode
-        scale = c.episode_length / jnp.maximum(final.time, 1).astype(jnp.float32)
-        asked = jnp.linalg.norm(extras.commanded) * scale
-        up = walked > c.promote_fraction * c.tile_size
-        down = (walked < c.demote_fraction * asked) & ~up
+        down = down & ~up
         level = carry.level + up.astype(jnp.int32) - down.astype(jnp.int32)
         u = jax.random.uniform(jax.random.fold_in(final.key, _LEVEL_SALT))
         anywhere = jnp.minimum(jnp.floor(u * c.levels), c.levels - 1).astype(jnp.int32)
@@ -288,14 +315,77 @@ class HexapodJoystickRough(HexapodJoystick):
         column: where its episodes start."""
         return self._origins[carry.level, carry.column]
 
+    def on_tile(self, data: mjx.Data, carry: RoughCarry) -> tuple[mjx.Data, jax.Array]:
+        """``data`` (a start on the flat floor at the world's origin) moved onto the env's
+        tile, the body ``init_height`` above its origin, and the origin."""
+        origin = self.origin(carry)
+        return data.replace(qpos=data.qpos.at[:3].add(origin)), origin
+
+    # ------------------------------------------------------------------ heights
+    def ground(self, xy: jax.Array) -> jax.Array:
+        """The terrain's height (m) at world points ``xy`` (``..., 2``)."""
+        return height(self.field, xy)
+
+    def height_above_ground(self, pos: jax.Array) -> jax.Array:
+        """The height (m) of a body at ``pos`` above the terrain under it (the fall rule
+        and the ``height`` metric read it)."""
+        return pos[2] - self.ground(pos[:2])
+
+    def scan_metrics(self, data: mjx.Data, level: jax.Array) -> dict[str, jax.Array]:
+        """``level`` (float) and the height scan under the body (:data:`SCAN_KEYS`: the
+        ground minus the torso's height at :data:`SCAN_OFFSETS`, clipped to +-1 m)."""
+        pos = data.qpos[:3]
+        scan = height_scan(self.field, pos, heading(data.qpos[3:7]), SCAN_OFFSETS)
+        scan = jnp.clip(scan, -1.0, 1.0)
+        return {"level": level.astype(jnp.float32)} | {k: scan[i] for i, k in enumerate(SCAN_KEYS)}
+
+    # ------------------------------------------------------------------ for tools
+    def tile_of(self, xy: Any) -> tuple[int, int]:
+        """The (level, column) of the generated tile holding world point ``xy`` (host
+        numbers; ``ValueError`` off the tiles)."""
+        cfg = self.terrain.config
+        assert cfg is not None
+        x0, _, y0, _ = self.terrain.tile_bounds(0, 0)
+        col = math.floor((float(xy[0]) - x0) / cfg.tile_size)
+        level = math.floor((float(xy[1]) - y0) / cfg.tile_size)
+        if not (0 <= level < cfg.levels and 0 <= col < len(cfg.types)):
+            raise ValueError(f"({float(xy[0]):.2f}, {float(xy[1]):.2f}) is off the tiles")
+        return level, col
+
+
+class HexapodJoystickRough(TerrainTask, HexapodJoystick):
+    """``HexapodJoystickRough-v0`` (the module docstring): the joystick on a terrain with
+    a level curriculum. Observation, action, command and reward as ``HexapodJoystick-v0``;
+    heights above the ground; ``level`` and the height scan among the metrics."""
+
+    metric_keys = (*HexapodJoystick.metric_keys, "level", *SCAN_KEYS)  # type: ignore[assignment]
+    config: JoystickRoughConfig
+
+    def __init__(self, config: JoystickRoughConfig | None = None) -> None:
+        config = config or JoystickRoughConfig()
+        super().__init__(config, self.setup_terrain(config))
+
+    def _carry_update(self, carry: RoughCarry, final: State, params: JoystickParams) -> RoughCarry:
+        """The next level by legged_gym's rule (module docstring), from the finished
+        episode's last state ``final``."""
+        del params
+        c = self.config
+        extras: RoughExtras = final.extras
+        walked = jnp.linalg.norm(final.data.qpos[:2] - extras.spawn)
+        # an episode that ended early is compared with its commands over a whole episode
+        scale = c.episode_length / jnp.maximum(final.time, 1).astype(jnp.float32)
+        asked = jnp.linalg.norm(extras.commanded) * scale
+        up = walked > c.promote_fraction * c.tile_size
+        down = walked < c.demote_fraction * asked
+        return self.next_level(carry, up, down, final)
+
     def _start(
         self, key: jax.Array, params: JoystickParams, carry: RoughCarry
     ) -> tuple[mjx.Data, RoughExtras]:
         """The joystick's start moved onto the env's tile (``init_height`` above its
         origin)."""
         data, extras = self._init(key, params)
-        origin = self.origin(carry)
-        data = data.replace(qpos=data.qpos.at[:3].add(origin))
+        data, origin = self.on_tile(data, carry)
         fields = {f.name: getattr(extras, f.name) for f in dataclasses.fields(extras)}
         rough = RoughExtras(
             **fields, level=carry.level, spawn=origin[:2], commanded=jnp.zeros(2, jnp.float32)
@@ -322,15 +412,6 @@ class HexapodJoystickRough(HexapodJoystick):
         assert isinstance(new, RoughExtras)
         return data, new.replace(commanded=extras.commanded + asked)
 
-    def ground(self, xy: jax.Array) -> jax.Array:
-        """The terrain's height (m) at world points ``xy`` (``..., 2``)."""
-        return height(self.field, xy)
-
-    def height_above_ground(self, pos: jax.Array) -> jax.Array:
-        """The height (m) of a body at ``pos`` above the terrain under it (the fall rule
-        and the ``height`` metric read it)."""
-        return pos[2] - self.ground(pos[:2])
-
     def _reward(
         self,
         prev: mjx.Data,
@@ -343,22 +424,4 @@ class HexapodJoystickRough(HexapodJoystick):
         ``level`` and the height scan (:data:`SCAN_KEYS`)."""
         assert isinstance(extras, RoughExtras)
         reward, metrics = super()._reward(prev, data, action, extras, params)
-        pos = data.qpos[:3]
-        metrics["level"] = extras.level.astype(jnp.float32)
-        scan = height_scan(self.field, pos, heading(data.qpos[3:7]), SCAN_OFFSETS)
-        scan = jnp.clip(scan, -1.0, 1.0)
-        metrics.update({k: scan[i] for i, k in enumerate(SCAN_KEYS)})
-        return reward, metrics
-
-    # ------------------------------------------------------------------ for tools
-    def tile_of(self, xy: Any) -> tuple[int, int]:
-        """The (level, column) of the generated tile holding world point ``xy`` (host
-        numbers; ``ValueError`` off the tiles)."""
-        cfg = self.terrain.config
-        assert cfg is not None
-        x0, _, y0, _ = self.terrain.tile_bounds(0, 0)
-        col = math.floor((float(xy[0]) - x0) / cfg.tile_size)
-        level = math.floor((float(xy[1]) - y0) / cfg.tile_size)
-        if not (0 <= level < cfg.levels and 0 <= col < len(cfg.types)):
-            raise ValueError(f"({float(xy[0]):.2f}, {float(xy[1]):.2f}) is off the tiles")
-        return level, col
+        return reward, metrics | self.scan_metrics(data, extras.level)

@@ -41,7 +41,7 @@ OBS_NOISE = np.concatenate(
 
 
 # -------------------------------------------------------------------------- HexapodWalk-v0
-def _target_offset(u: jax.Array, target_range: jax.Array) -> jax.Array:
+def target_offset(u: jax.Array, target_range: jax.Array) -> jax.Array:
     """A target's horizontal offset (2,) from where it is drawn (m): at a distance in
     ``target_range``, in a uniformly random direction, from two uniforms ``u`` in [0, 1)."""
     low, high = target_range[0], target_range[1]
@@ -100,8 +100,9 @@ class HexapodWalk(HexapodTask[WalkConfig]):
 
     * Observation (49), from the robot's readings: 18 joint angles (rad; legs lf, lm,
       lr, rf, rm, rr, each hip, femur, tibia: the encoders), 18 joint velocities (rad/s),
-      body height (m; privileged ``torso_pos``), gravity direction in the body frame (3,
-      from ``imu_quat``), body linear velocity in the body frame (3, m/s; privileged
+      body height (m, above the ground under the body: :meth:`height_above_ground`;
+      privileged ``torso_pos``), gravity direction in the body frame (3, from
+      ``imu_quat``), body linear velocity in the body frame (3, m/s; privileged
       ``torso_vel``), body angular velocity in the body frame (3, rad/s, ``imu_gyro``),
       unit direction to the target in the body frame (3; the target is on the floor, the
       direction horizontal in world, from ``torso_pos`` and ``imu_quat``); with
@@ -147,7 +148,7 @@ class HexapodWalk(HexapodTask[WalkConfig]):
         # (on a CPU most of a first call's compile time is the PRNG's)
         u = jax.random.uniform(key, (21,))
         qpos = self.spawn(u[:19])
-        offset = _target_offset(u[19:21], params.target_range)
+        offset = target_offset(u[19:21], params.target_range)
         target = jnp.concatenate([offset, jnp.array([0.01])])[None]
         data = self.sim.init_data(qpos=qpos, qvel=jnp.zeros(24), mocap_pos=target)
         return data, WalkExtras(targets_reached=jnp.zeros((), jnp.int32))
@@ -177,7 +178,7 @@ class HexapodWalk(HexapodTask[WalkConfig]):
         pos = self.robot.sense(data)["torso_pos"][:2]
         target = data.mocap_pos[0, :2]
         reached = jnp.linalg.norm(target - pos) < self.config.waypoint_radius
-        new = pos + _target_offset(jax.random.uniform(key, (2,)), params.target_range)
+        new = pos + target_offset(jax.random.uniform(key, (2,)), params.target_range)
         mocap = data.mocap_pos.at[0, :2].set(jnp.where(reached, new, target))
         count = extras.targets_reached + reached.astype(jnp.int32)
         return data.replace(mocap_pos=mocap), extras.replace(targets_reached=count)
@@ -197,7 +198,7 @@ class HexapodWalk(HexapodTask[WalkConfig]):
             [
                 self.robot.joint_pos(readings),
                 self.robot.joint_vel(readings),
-                pos[2:3],
+                self.height_above_ground(pos)[None],
                 gravity_in_body(quat),
                 readings["torso_vel"],
                 readings["imu_gyro"],
