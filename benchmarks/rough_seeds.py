@@ -1,5 +1,6 @@
-"""HexapodJoystickRough-v0 policies per seed: greedy tracking and falls at the middle and the
-top level of the terrain, under MJX and MuJoCo C, and a table of the seeds.
+"""HexapodJoystickRough-v0 and HexapodWalkRough-v0 policies per seed: greedy tracking (the
+joystick) or walking between targets (the walker) and falls at the middle and the top level
+of the terrain, under MJX and MuJoCo C, and a table of the seeds.
 
 One seed on one GPU (a cold compile cache: the run compiles everything it runs), then its
 evaluation under MJX on that GPU and under MuJoCo C on the CPU::
@@ -23,8 +24,10 @@ params drawn by ``env.sample_params``, one draw per env (``randomized``). Per gr
 per type: ``fell_fraction`` (envs that fell in the episode), ``tracking_error_lin`` (RMS
 over the env-steps while up of |command - velocity| in the horizontal plane, m/s, the
 body's mean velocity over the control step in its heading frame) and
-``tracking_error_yaw`` (the same of the yaw rate, rad/s). It writes
-``RUN/rough_eval_<physics>.json``.
+``tracking_error_yaw`` (the same of the yaw rate, rad/s). For the walker, instead of the
+tracking errors: ``speed`` (the mean over the env-steps while up of the progress toward the
+target in force, m/s) and ``targets_per_minute`` (targets reached while up, per env and
+minute of the episode). It writes ``RUN/rough_eval_<physics>.json``.
 
 ``table`` collects the eval files, each run's summary.json, progress.csv and config.yaml
 into one row per run: ``seed``, ``train_seconds`` (the run's wall, compile included),
@@ -32,8 +35,9 @@ into one row per run: ``seed``, ``train_seconds`` (the run's wall, compile inclu
 training envs), ``first_chunk_mean_level`` (the same of the first chunk), ``levels``,
 ``chunks`` of ``num_chunks`` trained and ``finished`` (False for a run stopped early),
 and for ``mjx``, ``mjx_randomized``, ``mujoco_c`` and ``mujoco_c_randomized`` a dict
-with ``mid`` and ``top``, each holding ``fell_fraction``, ``tracking_error_lin`` and
-``tracking_error_yaw``.
+with ``mid`` and ``top``, each holding the task's figures (``fell_fraction`` and the
+tracking errors, or the walker's ``speed`` and ``targets_per_minute``). The runs of one
+table are of one task.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -52,10 +57,17 @@ import results_io
 
 from jaxenvs.core import BatchedEnv
 from jaxenvs.run import runner
-from jaxenvs.tasks.hexapod.rough import HexapodJoystickRough, RoughCarry
+from jaxenvs.tasks.hexapod.rough import RoughCarry, TerrainTask
 
-ID = "HexapodJoystickRough-v0"
-FIGURES = ("fell_fraction", "tracking_error_lin", "tracking_error_yaw")
+#: each task's figures, and the per-step ``info`` each reads (module docstring)
+FIGURES = {
+    "HexapodJoystickRough-v0": ("fell_fraction", "tracking_error_lin", "tracking_error_yaw"),
+    "HexapodWalkRough-v0": ("fell_fraction", "speed", "targets_per_minute"),
+}
+STEP_INFO = {
+    "HexapodJoystickRough-v0": {"lin": "lin_error", "yaw": "yaw_error"},
+    "HexapodWalkRough-v0": {"progress": "progress", "targets": "targets_reached"},
+}
 #: (record field, engine, params group) of each bench in a ``table`` row
 BENCHES = (
     ("mjx", "mjx", "default"),
@@ -65,24 +77,26 @@ BENCHES = (
 )
 
 
-def eval_env(run_dir: str, physics: str | None) -> tuple[HexapodJoystickRough, Any]:
-    """The run's env as ``eval`` measures it (module docstring) and its greedy policy."""
+def eval_env(run_dir: str, physics: str | None) -> tuple[str, TerrainTask, Any]:
+    """The run's id, its env as ``eval`` measures it (module docstring) and its greedy
+    policy."""
     env_id, env, act = runner.load_policy(run_dir, physics)
-    if env_id != ID or not isinstance(env, HexapodJoystickRough):
-        raise SystemExit(f"{run_dir} is a run of {env_id}, not {ID}")
+    if env_id not in FIGURES or not isinstance(env, TerrainTask):
+        raise SystemExit(f"{run_dir} is a run of {env_id}, not of {' or '.join(FIGURES)}")
     default = type(env.config)()
+    off = {"push_probability": 0.0} if hasattr(default, "push_probability") else {}
     config = dataclasses.replace(
         env.config,
         min_height=default.min_height,
         min_upright=default.min_upright,
-        push_probability=0.0,
         action_noise=0.0,
         curriculum=False,
+        **off,
     )
-    return HexapodJoystickRough(config), act
+    return env_id, type(env)(config), act
 
 
-def tiles(env: HexapodJoystickRough, n: int) -> RoughCarry:
+def tiles(env: TerrainTask, n: int) -> RoughCarry:
     """The carries of the four groups of ``n`` envs, in the order default mid, default
     top, randomized mid, randomized top; env ``i`` of a group on column ``i mod types``."""
     c = env.config
@@ -91,9 +105,12 @@ def tiles(env: HexapodJoystickRough, n: int) -> RoughCarry:
     return RoughCarry(level=jnp.asarray(levels, jnp.int32), column=jnp.asarray(columns, jnp.int32))
 
 
-def rollout(env: HexapodJoystickRough, act: Any, n: int, steps: int, seed: int) -> dict[str, Any]:
-    """Each env's per-step errors and whether it was up before and after each step
-    ((steps, 4 n) arrays), from the starts of :func:`tiles`."""
+def rollout(
+    env: TerrainTask, act: Any, reads: dict[str, str], n: int, steps: int, seed: int
+) -> dict[str, Any]:
+    """Each env's per-step ``info`` entries named by ``reads`` (output name: info key) and
+    whether it was up before and after each step ((steps, 4 n) arrays), from the starts
+    of :func:`tiles`."""
     carry = tiles(env, n)
     keys = jax.random.split(jax.random.key(seed), 4 * n)
     split = (slice(0, 2 * n), slice(2 * n, 4 * n))
@@ -112,39 +129,47 @@ def rollout(env: HexapodJoystickRough, act: Any, n: int, steps: int, seed: int) 
         a = jax.vmap(act)(s.obs, jax.random.split(s.key[0], 4 * n))
         nxt = jax.vmap(env.step)(s, a, params)
         after = up & ~nxt.terminated
-        out = {"lin": nxt.info["lin_error"], "yaw": nxt.info["yaw_error"], "up": up}
+        out = {name: nxt.info[key] for name, key in reads.items()} | {"up": up}
         return (nxt, after), out | {"after": after}
 
     run = jax.jit(lambda s: jax.lax.scan(body, (s, jnp.ones(4 * n, bool)), None, length=steps))
     return jax.device_get(run(state)[1])
 
 
-def figures(x: dict[str, np.ndarray]) -> dict[str, float]:
-    """``fell_fraction`` and the RMS tracking errors of (steps, envs) arrays."""
+def figures(x: dict[str, np.ndarray], minutes: float) -> dict[str, float]:
+    """The figures of (steps, envs) arrays (module docstring): ``fell_fraction`` and the
+    RMS tracking errors (the joystick's ``lin``, ``yaw``) or the walker's ``speed`` and
+    ``targets_per_minute`` (its ``progress``, ``targets``) over an episode of ``minutes``."""
+    up = x["up"]  # selected, not multiplied: a fallen env's physics may be NaN
 
-    def rms(err: np.ndarray) -> float:
-        up = x["up"]  # selected, not multiplied: a fallen env's physics may be NaN
-        return float(np.sqrt(np.where(up, err * err, 0.0).sum() / max(up.sum(), 1)))
+    def mean_up(v: np.ndarray) -> float:
+        return float(np.where(up, v, 0.0).sum() / max(up.sum(), 1))
 
-    return {
-        "fell_fraction": float(1.0 - x["after"][-1].mean()),
-        "tracking_error_lin": rms(x["lin"]),
-        "tracking_error_yaw": rms(x["yaw"]),
-    }
+    out = {"fell_fraction": float(1.0 - x["after"][-1].mean())}
+    if "lin" in x:
+        out["tracking_error_lin"] = math.sqrt(mean_up(x["lin"] ** 2))
+        out["tracking_error_yaw"] = math.sqrt(mean_up(x["yaw"] ** 2))
+    else:
+        arrived = np.diff(x["targets"], axis=0, prepend=0) > 0  # targets_reached rose
+        out["speed"] = mean_up(x["progress"])
+        out["targets_per_minute"] = float((arrived & x["after"]).sum(0).mean() / minutes)
+    return out
 
 
 def evaluate(
     run_dir: str, physics: str | None, envs: int, seed: int, seconds: float
 ) -> dict[str, Any]:
     """The figures of one run (module docstring)."""
-    env, act = eval_env(run_dir, physics)
+    env_id, env, act = eval_env(run_dir, physics)
     steps = round(seconds / env.control_dt)
     if steps >= env.config.episode_length:
-        env = HexapodJoystickRough(dataclasses.replace(env.config, episode_length=steps + 1))
+        env = type(env)(dataclasses.replace(env.config, episode_length=steps + 1))
     start = time.perf_counter()
-    out = rollout(env, act, envs, steps, seed)
+    out = rollout(env, act, STEP_INFO[env_id], envs, steps, seed)
     c = env.config
+    minutes = steps * env.control_dt / 60.0
     result: dict[str, Any] = {
+        "env_id": env_id,
         "physics": env.physics,
         "device": jax.devices()[0].device_kind,
         "envs_per_group": envs,
@@ -161,10 +186,10 @@ def evaluate(
     ):
         x = {k: np.asarray(v)[:, g * envs : (g + 1) * envs] for k, v in out.items()}
         per_type = {
-            name: figures({k: v[:, types == t] for k, v in x.items()})
+            name: figures({k: v[:, types == t] for k, v in x.items()}, minutes)
             for t, name in enumerate(c.terrain_types)
         }
-        result.setdefault(params, {})[level] = figures(x) | {"types": per_type}
+        result.setdefault(params, {})[level] = figures(x, minutes) | {"types": per_type}
     return result
 
 
@@ -185,8 +210,8 @@ def row(run_dir: str) -> dict[str, Any]:
     """One table row (module docstring)."""
     run = Path(run_dir)
     config = runner.load_run_config(run)
-    if config.env_id != ID:
-        raise SystemExit(f"table: {run_dir} is a run of {config.env_id}, not {ID}")
+    if config.env_id not in FIGURES:
+        raise SystemExit(f"table: {run_dir} is a run of {config.env_id}, not a terrain task")
     summary = json.loads((run / runner.SUMMARY_FILE).read_text())
     evals = {
         physics: json.loads((run / eval_file(physics)).read_text())
@@ -194,6 +219,7 @@ def row(run_dir: str) -> dict[str, Any]:
         if (run / eval_file(physics)).exists()
     }
     out: dict[str, Any] = {
+        "env_id": config.env_id,
         "seed": config.train.seed,
         "run": run.name,
         "train_seconds": summary["wall_seconds"],
@@ -211,7 +237,8 @@ def row(run_dir: str) -> dict[str, Any]:
         if physics in evals:
             groups = evals[physics][params]
             out[field] = {
-                level: {k: round(groups[level][k], 4) for k in FIGURES} for level in ("mid", "top")
+                level: {k: round(groups[level][k], 4) for k in FIGURES[config.env_id]}
+                for level in ("mid", "top")
             }
     return out
 
@@ -247,15 +274,19 @@ def main(argv: list[str] | None = None) -> None:
         for params in ("default", "randomized"):
             for level in ("mid", "top"):
                 brief[f"{params}_{level}"] = {
-                    k: round(result[params][level][k], 4) for k in FIGURES
+                    k: round(result[params][level][k], 4) for k in FIGURES[result["env_id"]]
                 }
         print(json.dumps(brief, indent=1))
         print(f"wrote {path}")
         return
     rows = sorted((row(r) for r in args.run_dirs), key=lambda r: r["seed"])
+    ids = sorted({r["env_id"] for r in rows})
+    if len(ids) > 1:
+        raise SystemExit(f"table: the runs are of several tasks ({', '.join(ids)})")
     rec = results_io.record(
         args.json,
-        f"{ID} PPO per seed: train wall, final level, falls and tracking at mid and top",
+        f"{ids[0]} PPO per seed: train wall, final level, falls and "
+        f"{'tracking' if 'Joystick' in ids[0] else 'walking'} at mid and top",
         rows,
         description=args.machine or "training and the mjx eval on the gpu named; C on the CPU",
         engine="mjx: mjx*; MuJoCo C: mujoco_c*",

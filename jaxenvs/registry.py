@@ -255,6 +255,12 @@ def _builtin() -> None:
         hexapod.JoystickRoughConfig(),
         "the joystick on a terrain of levels x types, a per-env level curriculum, 400 steps",
     )
+    register(
+        "HexapodWalkRough-v0",
+        hexapod.HexapodWalkRough,
+        hexapod.WalkRoughConfig(),
+        "the walker on the same terrain and curriculum, targets on its own tile, 400 steps",
+    )
 
 
 _builtin()

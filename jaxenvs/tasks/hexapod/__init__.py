@@ -9,6 +9,8 @@
                              (:mod:`.one_leg`)
 ``HexapodJoystickRough-v0``  the joystick on a terrain of levels x types with a per-env
                              level curriculum; a blind policy (:mod:`.rough`)
+``HexapodWalkRough-v0``      the walker on the same terrain and curriculum, its targets
+                             on its own tile (:mod:`.walk_rough`)
 ===========================  ===========================================================
 
 :mod:`.base` holds what they share: the params (``HexapodParams``), the config fields of
@@ -69,8 +71,14 @@ from jaxenvs.tasks.hexapod.joystick import (
     sample_command,
 )
 from jaxenvs.tasks.hexapod.one_leg import HexapodOneLeg, OneLegConfig, OneLegExtras
-from jaxenvs.tasks.hexapod.rough import HexapodJoystickRough, JoystickRoughConfig
+from jaxenvs.tasks.hexapod.rough import (
+    HexapodJoystickRough,
+    JoystickRoughConfig,
+    TerrainFields,
+    TerrainTask,
+)
 from jaxenvs.tasks.hexapod.walk import OBS_NOISE, TARGET, HexapodWalk, WalkConfig, WalkExtras
+from jaxenvs.tasks.hexapod.walk_rough import HexapodWalkRough, WalkRoughConfig
 
 __all__ = [
     "CONES",
@@ -86,14 +94,18 @@ __all__ = [
     "HexapodRandomization",
     "HexapodTask",
     "HexapodWalk",
+    "HexapodWalkRough",
     "JoystickConfig",
     "JoystickExtras",
     "JoystickParams",
     "JoystickRoughConfig",
     "OneLegConfig",
     "OneLegExtras",
+    "TerrainFields",
+    "TerrainTask",
     "WalkConfig",
     "WalkExtras",
+    "WalkRoughConfig",
     "contact_edit",
     "contact_solver",
     "heading",
