@@ -36,8 +36,9 @@ training envs), ``first_chunk_mean_level`` (the same of the first chunk), ``leve
 ``chunks`` of ``num_chunks`` trained and ``finished`` (False for a run stopped early),
 and for ``mjx``, ``mjx_randomized``, ``mujoco_c`` and ``mujoco_c_randomized`` a dict
 with ``mid`` and ``top``, each holding the task's figures (``fell_fraction`` and the
-tracking errors, or the walker's ``speed`` and ``targets_per_minute``). The runs of one
-table are of one task.
+tracking errors, or the walker's ``speed`` and ``targets_per_minute``) and
+``mid_fell_by_type`` (each terrain type's ``fell_fraction`` at the middle level). The runs
+of one table are of one task.
 """
 
 from __future__ import annotations
@@ -239,6 +240,9 @@ def row(run_dir: str) -> dict[str, Any]:
             out[field] = {
                 level: {k: round(groups[level][k], 4) for k in FIGURES[config.env_id]}
                 for level in ("mid", "top")
+            }
+            out[field]["mid_fell_by_type"] = {
+                t: round(f["fell_fraction"], 4) for t, f in groups["mid"]["types"].items()
             }
     return out
 

@@ -1,5 +1,6 @@
 """Rough ground: HexapodJoystickRough-v0 per seed, its curriculum level and its tracking and
-falls at the terrain's middle and top level on each engine, against the issue's targets."""
+falls at the terrain's middle and top level on each engine, against the issue's targets;
+HexapodWalkRough-v0 per seed, its level, speed, targets and falls (no targets set)."""
 
 from __future__ import annotations
 
@@ -96,7 +97,54 @@ def rough_tracking(recs: list[Rec]) -> Cells:
     return each_row(head, found, cells)
 
 
+def walker_rough_training(recs: list[Rec]) -> Cells:
+    """Per seed: the train wall and chunks, the mean level in the first and last chunk."""
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        done = "" if r["finished"] else " (stopped)"
+        return [
+            str(r["seed"]),
+            f"{r['train_seconds']:.1f} s",
+            f"{r['chunks']} / {r['num_chunks']}{done}",
+            f"{r['first_chunk_mean_level']:.2f}",
+            f"{r['final_mean_level']:.2f} of {r['levels'] - 1}",
+        ]
+
+    head = ["seed", "train wall", "chunks", "mean level, first chunk", "mean level, last chunk"]
+    return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
+
+
+def walker_rough_walking(recs: list[Rec]) -> Cells:
+    """Per seed and engine group: speed toward the target, targets a minute and falls at
+    the middle and the top level, and the middle level's falls per terrain type."""
+    (rec,) = recs
+    rows = sorted(rec["rows"], key=lambda r: r["seed"])
+    types = list(next(r[f] for r in rows for f, _ in BENCHES if f in r)["mid_fell_by_type"])
+
+    def walk(g: Row) -> str:
+        return f"{g['speed']:.2f} / {g['targets_per_minute']:.1f} / {pct(g['fell_fraction'])}"
+
+    def cells(rb: tuple[Row, str, str]) -> list[str]:
+        r, field, label = rb
+        g = r[field]
+        by_type = " / ".join(pct(g["mid_fell_by_type"][t]) for t in types)
+        return [str(r["seed"]), label, walk(g["mid"]), walk(g["top"]), by_type]
+
+    head = [
+        "seed",
+        "engine",
+        "mid: m/s / targets a minute / fell",
+        "top: m/s / targets a minute / fell",
+        f"mid falls by type ({' / '.join(types)})",
+    ]
+    found = [(r, field, label) for r in rows for field, label in BENCHES if field in r]
+    return each_row(head, found, cells)
+
+
 TABLES = {
+    "walker-rough-training": Table(("ppo_walker_rough_seeds_h200",), walker_rough_training),
+    "walker-rough-walking": Table(("ppo_walker_rough_seeds_h200",), walker_rough_walking),
     "rough-training-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_training),
     "rough-tracking-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_tracking),
     "rough-training": Table(("ppo_joystick_rough_seeds_h200",), rough_training),
