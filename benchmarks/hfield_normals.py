@@ -1,25 +1,31 @@
 """Contact normals of a foot on a FLAT heightfield, under MuJoCo C and MJX.
 
-A sphere of the hexapod's foot radius (1.2 cm) is placed at ``--points`` random points of a
-flat heightfield of 2.5 cm cells (the terrain's spacing), pressed into it by a depth drawn
-uniformly in 0-12 mm, and collided once (``mj_forward`` / ``mjx.forward``). On a plane
-every contact normal is vertical; on a heightfield each engine collides the sphere with the
-triangles (MJX) or triangular prisms (MuJoCo C) under it, and near a cell's edge the normal
-can tilt. Per band of penetration: the share of placements with a contact whose normal's
-vertical component is below 0.99, the lowest such component, and the mean contact count.
-MuJoCo C is also run with MPR instead of the native CCD and with a tighter CCD tolerance.
+A sphere of the hexapod's foot radius (1.2 cm) is placed at ``--points`` random points of
+a flat heightfield of 2.5 cm cells (the terrain's spacing), pressed into it by a depth
+drawn uniformly in 0-12 mm (the foot's radius), and collided once (``mj_forward`` /
+``mjx.forward``). On a plane every contact normal is vertical; on a heightfield each
+engine collides the sphere with the triangles (MJX) or the triangular prisms (MuJoCo C)
+under it, and near a cell's edge the normal can tilt. Per band of penetration: the share
+of placements with a contact whose normal's vertical component is below 0.99, the lowest
+such component, and the mean contact count. MuJoCo C is also run with MPR instead of the
+native CCD and with a tighter CCD tolerance.
 
-    python benchmarks/hfield_normals.py --points 400
+    python benchmarks/hfield_normals.py --points 400 --json hfield_normals_cpu2
+
+``--json`` records one row per engine setting and band: ``engine``, ``band_mm``,
+``placements``, ``share_below_0_99``, ``lowest_normal_z`` and ``mean_contacts``.
 """
 
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+import results_io
 from mujoco import mjx
 
 FOOT = 0.012
@@ -49,7 +55,7 @@ def placements(points: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``(points, 7)`` free-joint poses and each one's penetration depth (m)."""
     rng = np.random.default_rng(seed)
     xy = rng.uniform(-0.2, 0.2, (points, 2))
-    depth = rng.uniform(0.0, 2 * FOOT, points)
+    depth = rng.uniform(0.0, FOOT, points)
     qpos = np.zeros((points, 7))
     qpos[:, :2], qpos[:, 2], qpos[:, 3] = xy, GROUND + FOOT - depth, 1.0
     return qpos, depth
@@ -83,31 +89,52 @@ def mjx_normals(m: mujoco.MjModel, qpos: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.asarray(low), np.asarray(count)
 
 
-def report(label: str, depth: np.ndarray, low: np.ndarray, count: np.ndarray) -> None:
-    cells = []
+def rows(label: str, depth: np.ndarray, low: np.ndarray, count: np.ndarray) -> list[dict[str, Any]]:
+    """One row per band of penetration (module docstring), printed as one line."""
+    out, cells = [], []
     for lo, hi in BANDS:
         sel = (depth >= lo) & (depth < hi)
+        row = {
+            "engine": label,
+            "band_mm": [lo * 1e3, hi * 1e3],
+            "placements": int(sel.sum()),
+            "share_below_0_99": float(np.mean(low[sel] < 0.99)),
+            "lowest_normal_z": float(low[sel].min()),
+            "mean_contacts": float(count[sel].mean()),
+        }
+        out.append(row)
         cells.append(
-            f"{lo * 1e3:.0f}-{hi * 1e3:.0f} mm: {np.mean(low[sel] < 0.99):.0%} below 0.99, "
-            f"lowest {low[sel].min():.3f}, {count[sel].mean():.1f} contacts"
+            f"{lo * 1e3:.0f}-{hi * 1e3:.0f} mm: {row['share_below_0_99']:.0%} below 0.99, "
+            f"lowest {row['lowest_normal_z']:.3f}, {row['mean_contacts']:.1f} contacts"
         )
     print(f"{label:28s} " + " | ".join(cells))
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--points", type=int, default=400)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", metavar="NAME", help=results_io.HELP)
     args = parser.parse_args()
     qpos, depth = placements(args.points, args.seed)
     m = model()
-    report("MuJoCo C", depth, *c_normals(m, qpos))
+    found = rows("MuJoCo C", depth, *c_normals(m, qpos))
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_NATIVECCD)
-    report("MuJoCo C, MPR", depth, *c_normals(m, qpos))
+    found += rows("MuJoCo C, MPR", depth, *c_normals(m, qpos))
     m = model()
     m.opt.ccd_tolerance, m.opt.ccd_iterations = 1e-9, 200
-    report("MuJoCo C, tight CCD", depth, *c_normals(m, qpos))
-    report("MJX", depth, *mjx_normals(model(), qpos))
+    found += rows("MuJoCo C, tight CCD", depth, *c_normals(m, qpos))
+    found += rows("MJX", depth, *mjx_normals(model(), qpos))
+    if args.json:
+        rec = results_io.record(
+            args.json,
+            "contact normals of a 1.2 cm sphere on a flat heightfield of 2.5 cm cells",
+            found,
+            engine="MuJoCo C (native CCD, MPR, tight CCD) and MJX on the CPU",
+            notes=f"{args.points} placements, seed {args.seed}, depth uniform in 0-12 mm",
+        )
+        results_io.write(args.json, rec)
 
 
 if __name__ == "__main__":

@@ -78,9 +78,11 @@ BENCHES = (
 )
 
 
-def eval_env(run_dir: str, physics: str | None) -> tuple[str, TerrainTask, Any]:
-    """The run's id, its env as ``eval`` measures it (module docstring) and its greedy
-    policy."""
+def eval_env(
+    run_dir: str, physics: str | None, max_contacts: int | None = None
+) -> tuple[str, TerrainTask, Any]:
+    """The run's id, its env as ``eval`` measures it (module docstring; with MJX's contact
+    budget ``max_contacts`` instead of the run's, if given) and its greedy policy."""
     env_id, env, act = runner.load_policy(run_dir, physics)
     if env_id not in FIGURES or not isinstance(env, TerrainTask):
         raise SystemExit(f"{run_dir} is a run of {env_id}, not of {' or '.join(FIGURES)}")
@@ -93,6 +95,7 @@ def eval_env(run_dir: str, physics: str | None) -> tuple[str, TerrainTask, Any]:
         action_noise=0.0,
         curriculum=False,
         **off,
+        **({} if max_contacts is None else {"max_contacts": max_contacts}),
     )
     return env_id, type(env)(config), act
 
@@ -158,10 +161,15 @@ def figures(x: dict[str, np.ndarray], minutes: float) -> dict[str, float]:
 
 
 def evaluate(
-    run_dir: str, physics: str | None, envs: int, seed: int, seconds: float
+    run_dir: str,
+    physics: str | None,
+    envs: int,
+    seed: int,
+    seconds: float,
+    max_contacts: int | None = None,
 ) -> dict[str, Any]:
     """The figures of one run (module docstring)."""
-    env_id, env, act = eval_env(run_dir, physics)
+    env_id, env, act = eval_env(run_dir, physics, max_contacts)
     steps = round(seconds / env.control_dt)
     if steps >= env.config.episode_length:
         env = type(env)(dataclasses.replace(env.config, episode_length=steps + 1))
@@ -179,6 +187,7 @@ def evaluate(
         "mid_level": c.levels // 2,
         "top_level": c.levels - 1,
         "types": list(c.terrain_types),
+        "max_contacts": c.max_contacts,
         "wall_seconds": round(time.perf_counter() - start, 2),  # compile included
     }
     types = np.arange(envs) % len(c.terrain_types)
@@ -256,6 +265,15 @@ def _parser() -> argparse.ArgumentParser:
     ev.add_argument("--envs", type=int, default=280, help="envs per group (default 280)")
     ev.add_argument("--seed", type=int, default=123)
     ev.add_argument("--seconds", type=float, default=20.0, help="episode length (s)")
+    ev.add_argument(
+        "--max-contacts",
+        type=int,
+        default=None,
+        help="MJX's contact budget for the eval (0: every contact; default: the run's)",
+    )
+    ev.add_argument(
+        "--out", default=None, help="the eval file (default: RUN/rough_eval_<physics>.json)"
+    )
     tb = sub.add_parser("table", help="one row per evaluated run")
     tb.add_argument("run_dirs", nargs="+")
     tb.add_argument("--json", metavar="NAME", required=True, help=results_io.HELP)
@@ -271,8 +289,10 @@ def main(argv: list[str] | None = None) -> None:
     if args.command == "eval":
         if args.envs < 1 or not 0 < args.seconds <= 600:
             raise SystemExit("--envs must be >= 1 and --seconds in (0, 600]")
-        result = evaluate(args.run_dir, args.physics, args.envs, args.seed, args.seconds)
-        path = Path(args.run_dir) / eval_file(result["physics"])
+        result = evaluate(
+            args.run_dir, args.physics, args.envs, args.seed, args.seconds, args.max_contacts
+        )
+        path = Path(args.out or Path(args.run_dir) / eval_file(result["physics"]))
         path.write_text(json.dumps(result, indent=2) + "\n")
         brief = {k: v for k, v in result.items() if k not in ("default", "randomized")}
         for params in ("default", "randomized"):

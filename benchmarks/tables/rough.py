@@ -142,7 +142,35 @@ def walker_rough_walking(recs: list[Rec]) -> Cells:
     return each_row(head, found, cells)
 
 
+def hfield_normals(recs: list[Rec]) -> Cells:
+    """Per engine setting and band of penetration: the share of foot placements on a flat
+    heightfield with a contact normal below 0.99 vertical, the lowest, the contacts."""
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        lo, hi = r["band_mm"]
+        return [
+            r["engine"],
+            f"{lo:.0f}-{hi:.0f} mm",
+            str(r["placements"]),
+            pct(r["share_below_0_99"]),
+            f"{r['lowest_normal_z']:.3f}",
+            f"{r['mean_contacts']:.1f}",
+        ]
+
+    head = [
+        "engine",
+        "penetration",
+        "placements",
+        "with a normal below 0.99 vertical",
+        "lowest normal z",
+        "contacts (mean)",
+    ]
+    return each_row(head, rec["rows"], cells)
+
+
 TABLES = {
+    "hfield-normals": Table(("hfield_normals_cpu2",), hfield_normals),
     "walker-rough-training": Table(("ppo_walker_rough_seeds_h200",), walker_rough_training),
     "walker-rough-walking": Table(("ppo_walker_rough_seeds_h200",), walker_rough_walking),
     "rough-training-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_training),

@@ -124,6 +124,7 @@ def test_the_observed_height_is_above_the_ground(env, starts) -> None:
         ("target_distance", (0.75, 1.6)),
         ("demote_targets", 5),
         ("promote_targets", 0),
+        ("waypoint_radius", 0.0),
         ("max_init_level", 4),
         ("terrain_types", ("flat", "moon")),
     ],

@@ -110,8 +110,9 @@ _TERRAIN_FIELDS = {"types": "terrain_types", "border": "terrain_border", "seed":
 @dataclasses.dataclass(frozen=True)
 class TerrainFields:
     """The config fields of a hexapod task on a generated terrain with a level curriculum
-    (:class:`TerrainTask`), mixed into the task's own config (which calls
-    :meth:`validate_terrain` from its ``validate``).
+    (:class:`TerrainTask`), mixed into the task's own config, listed first among its bases
+    (so that its fields follow the flat task's), which calls :meth:`validate_terrain` from
+    its ``validate``.
 
     Attributes:
       levels: difficulty levels of the terrain (rows of tiles).
@@ -167,7 +168,7 @@ class TerrainFields:
 
 
 @dataclasses.dataclass(frozen=True)
-class JoystickRoughConfig(JoystickConfig, TerrainFields):
+class JoystickRoughConfig(TerrainFields, JoystickConfig):
     """``HexapodJoystickRough-v0`` (the joystick's fields:
     :class:`~jaxenvs.tasks.hexapod.joystick.JoystickConfig`; the terrain's:
     :class:`TerrainFields`; the module docstring says how each is used).

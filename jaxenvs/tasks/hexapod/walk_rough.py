@@ -11,11 +11,13 @@ targets on its own tile.
 * **Targets on the tile.** Every target (the first, and each waypoint) is drawn at a
   distance in ``target_distance`` (0.75 to 1.5 m) from the tile's centre, in a uniformly
   random direction, or at the opposite point when that is farther from the body (so a
-  new target is never where the body already is). With 3 m tiles the targets, and the
-  walk between them, stay on the env's tile: its level and terrain type are what the
-  episode is measured on.
+  new target is never where the body already is). With 3 m tiles every target lies on
+  the env's tile, and the walk between targets keeps to it but for its edge (a body
+  within ``waypoint_radius`` of a target on the edge, its feet 0.3 m around it, can
+  stand just past it): the tile's level and terrain type are what the episode is
+  measured on.
 * **Level rule.** After each finished episode the level goes up by one when the episode
-  reached at least ``promote_targets`` targets (4: about 5 m of walking in 20 s), else
+  reached at least ``promote_targets`` targets (4: about 5.6 m of walking in 20 s), else
   down by one when it reached fewer than ``demote_targets`` (2); an env promoted past the
   top level goes to a level drawn uniformly over all of them.
 * **Observation, action, reward.** The walker's (49 entries, the height above the ground
@@ -50,7 +52,7 @@ _MARKER_LIFT = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
-class WalkRoughConfig(WalkConfig, TerrainFields):
+class WalkRoughConfig(TerrainFields, WalkConfig):
     """``HexapodWalkRough-v0`` (the walker's fields:
     :class:`~jaxenvs.tasks.hexapod.walk.WalkConfig`; the terrain's:
     :class:`~jaxenvs.tasks.hexapod.rough.TerrainFields`; the module docstring says how each
@@ -61,7 +63,9 @@ class WalkRoughConfig(WalkConfig, TerrainFields):
       solver_iterations, ls_iterations, max_contacts: the rough joystick's (CG 30 / 10
         for MJX on a CPU; the 8 deepest contacts under MJX).
       target_distance: each target's distance from the tile's centre (m); the far end
-        at most half a tile, so that targets stay on the tile.
+        at most half a tile, so that targets lie on the tile.
+      waypoint_radius: the walker's (0.25 m); must be > 0 here, since the level rule
+        counts the targets reached.
       promote_targets: promote after an episode that reached at least this many targets
         ...
       demote_targets: ... else demote after one that reached fewer than this many.
@@ -80,6 +84,7 @@ class WalkRoughConfig(WalkConfig, TerrainFields):
     def validate(self) -> None:
         super().validate()
         self.validate_terrain()
+        require(self.waypoint_radius > 0, "waypoint_radius", "must be > 0: levels move by targets")
         require(self.promote_targets >= 1, "promote_targets", "must be >= 1")
         require(
             self.demote_targets <= self.promote_targets,
@@ -89,7 +94,7 @@ class WalkRoughConfig(WalkConfig, TerrainFields):
         require(
             self.target_distance[1] <= self.tile_size / 2,
             "target_distance",
-            f"must end within half a tile ({self.tile_size / 2} m): targets stay on the tile",
+            f"must end within half a tile ({self.tile_size / 2} m): targets lie on the tile",
         )
 
 
