@@ -112,9 +112,7 @@ def tiles(env: TerrainTask, n: int) -> RoughCarry:
 def rollout(
     env: TerrainTask, act: Any, reads: dict[str, str], n: int, steps: int, seed: int
 ) -> dict[str, Any]:
-    """Each env's per-step ``info`` entries named by ``reads`` (output name: info key) and
-    whether it was up before and after each step ((steps, 4 n) arrays), from the starts
-    of :func:`tiles`."""
+    """:func:`trajectories` of the four groups of :func:`tiles`: ``(steps, 4 n)`` arrays."""
     carry = tiles(env, n)
     keys = jax.random.split(jax.random.key(seed), 4 * n)
     split = (slice(0, 2 * n), slice(2 * n, 4 * n))
@@ -127,16 +125,27 @@ def rollout(
     default = jax.tree.map(lambda x: jnp.broadcast_to(x, (2 * n, *x.shape)), env.default_params)
     params = jax.tree.map(lambda *xs: jnp.concatenate(xs), default, drawn.params)
     state = jax.tree.map(lambda *xs: jnp.concatenate(xs), plain, drawn.replace(params=None))
+    return trajectories(env, act, reads, state, params, steps)
+
+
+def trajectories(
+    env: Any, act: Any, reads: dict[str, str], state: Any, params: Any, steps: int
+) -> dict[str, Any]:
+    """Each env's per-step ``info`` entries named by ``reads`` (output name: info key) and
+    whether it was up before and after each step (``(steps, envs)`` arrays), the greedy
+    policy ``act`` driving the batch ``state`` under the batched ``params`` (no reset: a
+    fallen env stays fallen)."""
+    n = state.obs.shape[0]
 
     def body(carry: Any, _: None) -> tuple[Any, dict[str, jax.Array]]:
         s, up = carry
-        a = jax.vmap(act)(s.obs, jax.random.split(s.key[0], 4 * n))
+        a = jax.vmap(act)(s.obs, jax.random.split(s.key[0], n))
         nxt = jax.vmap(env.step)(s, a, params)
         after = up & ~nxt.terminated
         out = {name: nxt.info[key] for name, key in reads.items()} | {"up": up}
         return (nxt, after), out | {"after": after}
 
-    run = jax.jit(lambda s: jax.lax.scan(body, (s, jnp.ones(4 * n, bool)), None, length=steps))
+    run = jax.jit(lambda s: jax.lax.scan(body, (s, jnp.ones(n, bool)), None, length=steps))
     return jax.device_get(run(state)[1])
 
 

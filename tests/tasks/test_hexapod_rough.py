@@ -293,6 +293,7 @@ def test_the_observation_is_blind(env) -> None:
         ("tile_size", 3.01),
         ("terrain_border", 0.01),
         ("terrain_types", ("flat", "moon")),
+        ("terrain_spacing", 0.0),
     ],
 )
 def test_bad_config_is_named(field, value) -> None:

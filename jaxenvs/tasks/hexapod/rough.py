@@ -104,7 +104,12 @@ SCAN_KEYS = tuple(f"scan_{i:02d}" for i in range(len(SCAN_OFFSETS)))
 #: folded into a finished episode's key for the draw of a level past the top
 _LEVEL_SALT = 0x6C76
 #: this config's name of each generator field it sets under another name
-_TERRAIN_FIELDS = {"types": "terrain_types", "border": "terrain_border", "seed": "terrain_seed"}
+_TERRAIN_FIELDS = {
+    "types": "terrain_types",
+    "border": "terrain_border",
+    "seed": "terrain_seed",
+    "spacing": "terrain_spacing",
+}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,6 +129,8 @@ class TerrainFields:
         9.4 m) ends with the feet (within 0.3 m of the body) 1.8 m inside the field (with
         a 1 m margin, robots on the outer tiles walked off the field's edge and fell).
       terrain_seed: the terrain generator's seed.
+      terrain_spacing: the heightfield's sample spacing (m; the generator's 2.5 cm, about
+        a foot's diameter).
       min_init_level, max_init_level: an env's first level is uniform in this range.
       spawn_types: the terrain types an env may be given (empty: every column).
       curriculum: move the levels after each episode (False: they stay as drawn).
@@ -134,6 +141,7 @@ class TerrainFields:
     tile_size: float = 3.0
     terrain_border: float = 10.0
     terrain_seed: int = 0
+    terrain_spacing: float = 0.025
     min_init_level: int = 0
     max_init_level: int = 2
     spawn_types: tuple[str, ...] = ()
@@ -147,6 +155,7 @@ class TerrainFields:
             tile_size=self.tile_size,
             border=self.terrain_border,
             seed=self.terrain_seed,
+            spacing=self.terrain_spacing,
         )
 
     def validate_terrain(self) -> None:
