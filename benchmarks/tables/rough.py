@@ -33,6 +33,17 @@ def _mid_met(g: Row) -> bool:
     )
 
 
+def _run_cells(r: Row) -> list[str]:
+    """A terrain run's seed, train wall, chunks and first chunk's mean level."""
+    done = "" if r["finished"] else " (stopped)"
+    return [
+        str(r["seed"]),
+        f"{r['train_seconds']:.1f} s",
+        f"{r['chunks']} / {r['num_chunks']}{done}",
+        f"{r['first_chunk_mean_level']:.2f}",
+    ]
+
+
 def rough_training(recs: list[Rec]) -> Cells:
     """Per seed: the train wall and chunks, the mean level in the first and last chunk, and
     whether the wall (<= 600 s) and the level (>= 0.6 x (levels - 1)) targets are met."""
@@ -40,12 +51,8 @@ def rough_training(recs: list[Rec]) -> Cells:
 
     def cells(r: Row) -> list[str]:
         bar = LEVEL_SHARE * (r["levels"] - 1)
-        done = "" if r["finished"] else " (stopped)"
         return [
-            str(r["seed"]),
-            f"{r['train_seconds']:.1f} s",
-            f"{r['chunks']} / {r['num_chunks']}{done}",
-            f"{r['first_chunk_mean_level']:.2f}",
+            *_run_cells(r),
             f"{r['final_mean_level']:.2f}",
             f"{bar:.1f}",
             met(r["train_seconds"] <= 600 and r["finished"]),
@@ -102,14 +109,7 @@ def walker_rough_training(recs: list[Rec]) -> Cells:
     (rec,) = recs
 
     def cells(r: Row) -> list[str]:
-        done = "" if r["finished"] else " (stopped)"
-        return [
-            str(r["seed"]),
-            f"{r['train_seconds']:.1f} s",
-            f"{r['chunks']} / {r['num_chunks']}{done}",
-            f"{r['first_chunk_mean_level']:.2f}",
-            f"{r['final_mean_level']:.2f} of {r['levels'] - 1}",
-        ]
+        return [*_run_cells(r), f"{r['final_mean_level']:.2f} of {r['levels'] - 1}"]
 
     head = ["seed", "train wall", "chunks", "mean level, first chunk", "mean level, last chunk"]
     return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
