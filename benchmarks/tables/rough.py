@@ -169,26 +169,31 @@ def hfield_normals(recs: list[Rec]) -> Cells:
     return each_row(head, rec["rows"], cells)
 
 
-def walker_ground(recs: list[Rec]) -> Cells:
-    """Per engine and ground: falls, speed and targets a minute of one policy on flat
-    ground made three ways."""
+def flat_ground(recs: list[Rec]) -> Cells:
+    """Per engine and ground: one terrain policy's falls and its walking (speed, targets a
+    minute) or tracking (linear, yaw RMS errors) on flat ground made three ways."""
+    rows = [r for rec in recs for r in rec["rows"]]
+    walker = "speed" in rows[0]
 
     def cells(r: Row) -> list[str]:
-        return [
-            r["physics"],
-            r["ground"],
-            str(r["envs"]),
-            pct(r["fell_fraction"]),
-            f"{r['speed']:.2f}",
-            f"{r['targets_per_minute']:.1f}",
-        ]
+        if walker:
+            figures = [f"{r['speed']:.2f}", f"{r['targets_per_minute']:.1f}"]
+        else:
+            figures = [f"{r['tracking_error_lin']:.3f}", f"{r['tracking_error_yaw']:.3f}"]
+        return [r["physics"], r["ground"], str(r["envs"]), pct(r["fell_fraction"]), *figures]
 
-    head = ["engine", "ground", "envs", "fell in 20 s", "m/s toward the target", "targets a minute"]
-    return each_row(head, [r for rec in recs for r in rec["rows"]], cells)
+    named = (
+        ["m/s toward the target", "targets a minute"]
+        if walker
+        else ["lin error RMS (m/s)", "yaw error RMS (rad/s)"]
+    )
+    head = ["engine", "ground", "envs", "fell in 20 s", *named]
+    return each_row(head, rows, cells)
 
 
 TABLES = {
-    "walker-ground": Table(("walker_ground_cpu2", "walker_ground_cpu2_mjx"), walker_ground),
+    "walker-ground": Table(("walker_ground_cpu2", "walker_ground_cpu2_mjx"), flat_ground),
+    "joystick-ground": Table(("joystick_ground_cpu2", "joystick_ground_cpu2_mjx"), flat_ground),
     "hfield-normals": Table(("hfield_normals_cpu2",), hfield_normals),
     "walker-rough-training": Table(("ppo_walker_rough_seeds_h200",), walker_rough_training),
     "walker-rough-walking": Table(("ppo_walker_rough_seeds_h200",), walker_rough_walking),

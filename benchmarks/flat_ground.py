@@ -1,18 +1,20 @@
-"""A rough walker's policy on flat ground made three ways: a plane, and an all-flat
+"""A terrain task's policy on flat ground made three ways: a plane, and an all-flat
 heightfield of 2.5 cm cells (the terrain's) or of 10 cm cells, under MuJoCo C or MJX.
 
-Flat ground is flat however it is made, so a policy that walks on the plane and falls on
-the flat heightfield falls because of the heightfield's contact (``hfield_normals.py``
-shows MuJoCo C's contact normals tilting on flat cells). The run's greedy policy (a
-``HexapodWalkRough-v0`` run, set up as ``rough_seeds.py eval`` sets it up: default fall
-rule, no action noise, the run's observation noise) drives ``--envs`` envs for 20 s with
-default physics: on the plane, ``HexapodWalk-v0`` with the run's config (its targets 1-3 m
-from the body, drawn anew on arrival); on a heightfield, ``HexapodWalkRough-v0`` with the
-run's config, one terrain type (``flat``) and that ``terrain_spacing`` (its targets about
-the tile's centre). One row per ground: ``ground``, ``physics``, ``envs``,
-``fell_fraction``, ``speed`` (m/s toward the target, while up) and ``targets_per_minute``.
+Flat ground is flat however it is made, so a policy that walks on the plane and falls
+(or tracks worse) on the flat heightfield does so because of the heightfield's contact
+(``hfield_normals.py`` shows MuJoCo C's contact normals tilting on flat cells). The run's
+greedy policy (a ``HexapodWalkRough-v0`` or ``HexapodJoystickRough-v0`` run, set up as
+``rough_seeds.py eval`` sets it up: default fall rule, no pushes or action noise, the
+run's observation noise and filter) drives ``--envs`` envs for 20 s with default physics:
+on the plane, the flat task (``HexapodWalk-v0``, its targets 1-3 m from the body, or
+``HexapodJoystick-v0``, its commands redrawn every 5 s) with the run's config; on a
+heightfield, the terrain task with the run's config, one terrain type (``flat``) and that
+``terrain_spacing``. One row per ground: ``ground``, ``physics``, ``envs`` and the task's
+figures of ``rough_seeds.py`` (``fell_fraction``, and ``speed`` and
+``targets_per_minute`` or ``tracking_error_lin`` and ``tracking_error_yaw``).
 
-    JAX_PLATFORMS=cpu python benchmarks/walker_ground.py RUN --physics c --json walker_ground_cpu2
+    JAX_PLATFORMS=cpu python benchmarks/flat_ground.py RUN --physics c --json walker_ground_cpu2
 """
 
 from __future__ import annotations
@@ -29,9 +31,9 @@ import results_io
 import rough_seeds
 
 from jaxenvs.core import BatchedEnv
-from jaxenvs.tasks.hexapod.rough import RoughCarry
+from jaxenvs.tasks.hexapod.joystick import HexapodJoystick, JoystickConfig
+from jaxenvs.tasks.hexapod.rough import HexapodJoystickRough, RoughCarry, TerrainTask
 from jaxenvs.tasks.hexapod.walk import HexapodWalk, WalkConfig
-from jaxenvs.tasks.hexapod.walk_rough import HexapodWalkRough
 
 SECONDS = 20.0
 #: each ground: its name and the heightfield's sample spacing (m; None: the plane)
@@ -42,24 +44,27 @@ GROUNDS = (
 )
 
 
-def on_ground(rough: HexapodWalkRough, spacing: float | None, steps: int) -> Any:
+def on_ground(rough: TerrainTask, spacing: float | None, steps: int) -> Any:
     """The env of one ground (module docstring), episodes longer than ``steps``."""
     c = rough.config
     if spacing is None:
-        names = {f.name for f in dataclasses.fields(WalkConfig)} - {"target_distance"}
-        flat = WalkConfig(**{k: getattr(c, k) for k in names})
-        return HexapodWalk(dataclasses.replace(flat, episode_length=steps + 1))
+        flat_task, flat_config = (
+            (HexapodJoystick, JoystickConfig)
+            if isinstance(rough, HexapodJoystickRough)
+            else (HexapodWalk, WalkConfig)
+        )
+        names = {f.name for f in dataclasses.fields(flat_config)} - {"target_distance"}
+        flat = flat_config(**{k: getattr(c, k) for k in names})
+        return flat_task(dataclasses.replace(flat, episode_length=steps + 1))
     config = dataclasses.replace(
         c, terrain_types=("flat",), terrain_spacing=spacing, episode_length=steps + 1
     )
-    return HexapodWalkRough(config)
+    return type(rough)(config)
 
 
-def measure(run: str, physics: str | None, n: int, seed: int) -> list[dict[str, Any]]:
-    """One row per ground (module docstring)."""
+def measure(run: str, physics: str | None, n: int, seed: int) -> tuple[str, list[dict[str, Any]]]:
+    """The run's task id and one row per ground (module docstring)."""
     env_id, rough, act = rough_seeds.eval_env(run, physics)
-    if not isinstance(rough, HexapodWalkRough):
-        raise SystemExit(f"{run} is a run of {env_id}, not HexapodWalkRough-v0")
     steps = round(SECONDS / rough.control_dt)
     keys = jax.random.split(jax.random.key(seed), n)
     rows = []
@@ -76,7 +81,7 @@ def measure(run: str, physics: str | None, n: int, seed: int) -> list[dict[str, 
         figures = rough_seeds.figures({k: np.asarray(v) for k, v in out.items()}, SECONDS / 60)
         rows.append({"ground": name, "physics": env.physics, "envs": n} | figures)
         print(json.dumps(rows[-1]), flush=True)
-    return rows
+    return env_id, rows
 
 
 def main() -> None:
@@ -87,11 +92,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=123)
     parser.add_argument("--json", metavar="NAME", help=results_io.HELP)
     args = parser.parse_args()
-    rows = measure(args.run_dir, args.physics, args.envs, args.seed)
+    env_id, rows = measure(args.run_dir, args.physics, args.envs, args.seed)
     if args.json:
         rec = results_io.record(
             args.json,
-            "HexapodWalkRough-v0's policy on flat ground: a plane and flat heightfields",
+            f"{env_id}'s policy on flat ground: a plane and flat heightfields",
             rows,
             engine=rows[0]["physics"],
         )
