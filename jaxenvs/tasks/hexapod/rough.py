@@ -120,6 +120,13 @@ class TerrainFields:
     its ``validate``.
 
     Attributes:
+      episode_length: 400 control steps (20 s), legged_gym's episode (a field of the
+        task's config; the terrain tasks' default).
+      solver_iterations, ls_iterations: the CG solve's (MJX on a CPU: the family's
+        ``solver: auto``), 30 and 10: converged (the flat tasks' few diverge on the
+        heightfield; fields of the task's config).
+      max_contacts: under MJX, the 8 deepest contacts of a step are kept (of the feet's
+        24 slots on the heightfield; a field of the task's config).
       levels: difficulty levels of the terrain (rows of tiles).
       terrain_types: the terrain type of each column of tiles
         (:data:`jaxenvs.scenes.terrain.TYPES`).
@@ -136,6 +143,10 @@ class TerrainFields:
       curriculum: move the levels after each episode (False: they stay as drawn).
     """
 
+    episode_length: int = 400
+    solver_iterations: int = 30
+    ls_iterations: int = 10
+    max_contacts: int = 8
     levels: int = 10
     terrain_types: tuple[str, ...] = TYPES
     tile_size: float = 3.0
@@ -183,22 +194,12 @@ class JoystickRoughConfig(TerrainFields, JoystickConfig):
     :class:`TerrainFields`; the module docstring says how each is used).
 
     Attributes:
-      episode_length: 400 control steps (20 s).
-      solver_iterations, ls_iterations: the CG solve's (MJX on a CPU: the family's
-        ``solver: auto``), 30 and 10: converged (the flat tasks' few diverge on the
-        heightfield).
-      max_contacts: under MJX, the 8 deepest contacts of a step are kept (of the feet's
-        24 slots on the heightfield; module docstring).
       promote_fraction: promote when the body ended farther than this fraction of
         ``tile_size`` from its spawn ...
       demote_fraction: ... else demote when it covered less than this fraction of the
         distance its commands asked for.
     """
 
-    episode_length: int = 400
-    solver_iterations: int = 30
-    ls_iterations: int = 10
-    max_contacts: int = 8
     promote_fraction: float = 0.5
     demote_fraction: float = 0.5
 

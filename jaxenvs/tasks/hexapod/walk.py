@@ -173,15 +173,28 @@ class HexapodWalk(HexapodTask[WalkConfig]):
     def next_target(
         self, key: jax.Array, data: mjx.Data, extras: WalkExtras, params: HexapodParams
     ) -> tuple[mjx.Data, WalkExtras]:
-        """``data`` with a new target drawn from ``key`` where the body is within
-        ``waypoint_radius`` of the current one (else unchanged), and the arrival counted."""
+        """``data`` with a new target (:meth:`draw_target`, placed by :meth:`place_target`)
+        where the body is within ``waypoint_radius`` of the current one (else unchanged),
+        and the arrival counted."""
         pos = self.robot.sense(data)["torso_pos"][:2]
-        target = data.mocap_pos[0, :2]
-        reached = jnp.linalg.norm(target - pos) < self.config.waypoint_radius
-        new = pos + target_offset(jax.random.uniform(key, (2,)), params.target_range)
-        mocap = data.mocap_pos.at[0, :2].set(jnp.where(reached, new, target))
+        reached = jnp.linalg.norm(data.mocap_pos[0, :2] - pos) < self.config.waypoint_radius
+        new = self.place_target(data.mocap_pos, self.draw_target(key, pos, extras, params))
+        mocap = jnp.where(reached, new, data.mocap_pos)
         count = extras.targets_reached + reached.astype(jnp.int32)
         return data.replace(mocap_pos=mocap), extras.replace(targets_reached=count)
+
+    def draw_target(
+        self, key: jax.Array, pos: jax.Array, extras: WalkExtras, params: HexapodParams
+    ) -> jax.Array:
+        """A new target's world (x, y), drawn from ``key`` for a body at ``pos`` (x, y):
+        at a distance in ``target_range`` from the body, in a uniformly random direction."""
+        del extras
+        return pos + target_offset(jax.random.uniform(key, (2,)), params.target_range)
+
+    def place_target(self, mocap_pos: jax.Array, target: jax.Array) -> jax.Array:
+        """``mocap_pos`` with the target marker at world (x, y) ``target`` (its height
+        kept)."""
+        return mocap_pos.at[0, :2].set(target)
 
     def task_state(self, data: mjx.Data, extras: WalkExtras) -> jax.Array:
         """The task's own input to :meth:`observation`: the target's world (x, y) (m)."""

@@ -59,9 +59,6 @@ class WalkRoughConfig(TerrainFields, WalkConfig):
     is used).
 
     Attributes:
-      episode_length: 400 control steps (20 s).
-      solver_iterations, ls_iterations, max_contacts: the rough joystick's (CG 30 / 10
-        for MJX on a CPU; the 8 deepest contacts under MJX).
       target_distance: each target's distance from the tile's centre (m); the far end
         at most half a tile, so that targets lie on the tile.
       waypoint_radius: the walker's (0.25 m); must be > 0 here, since the level rule
@@ -71,10 +68,6 @@ class WalkRoughConfig(TerrainFields, WalkConfig):
       demote_targets: ... else demote after one that reached fewer than this many.
     """
 
-    episode_length: int = 400
-    solver_iterations: int = 30
-    ls_iterations: int = 10
-    max_contacts: int = 8
     target_distance: Range = (0.75, 1.5)
     promote_targets: int = 4
     demote_targets: int = 2
@@ -141,34 +134,28 @@ class HexapodWalkRough(TerrainTask, HexapodWalk):
         data, extras = self._init(key, params)
         data, origin = self.on_tile(data, carry)
         target = origin[:2] + data.mocap_pos[0, :2]  # the walker drew it about (0, 0)
-        data = data.replace(mocap_pos=self._marker(data.mocap_pos, target))
+        data = data.replace(mocap_pos=self.place_target(data.mocap_pos, target))
         rough = WalkRoughExtras(
             targets_reached=extras.targets_reached, level=carry.level, spawn=origin[:2]
         )
         return data, rough
 
-    def _marker(self, mocap_pos: jax.Array, target: jax.Array) -> jax.Array:
+    def place_target(self, mocap_pos: jax.Array, target: jax.Array) -> jax.Array:
         """``mocap_pos`` with the target marker at world (x, y) ``target``, on the ground."""
         z = self.ground(target) + _MARKER_LIFT
         return mocap_pos.at[0].set(jnp.concatenate([target, z[None]]))
 
-    def next_target(
-        self, key: jax.Array, data: mjx.Data, extras: WalkExtras, params: HexapodParams
-    ) -> tuple[mjx.Data, WalkExtras]:
-        """``data`` with a new target where the body is within ``waypoint_radius`` of the
-        current one (else unchanged), drawn about the tile's centre (module docstring),
-        and the arrival counted."""
+    def draw_target(
+        self, key: jax.Array, pos: jax.Array, extras: WalkExtras, params: HexapodParams
+    ) -> jax.Array:
+        """A new target about the tile's centre (module docstring): at a distance in
+        ``target_range`` from it in a uniformly random direction, or the opposite point
+        when that is farther from the body at ``pos``."""
         assert isinstance(extras, WalkRoughExtras)
-        pos = self.robot.sense(data)["torso_pos"][:2]
-        target = data.mocap_pos[0, :2]
-        reached = jnp.linalg.norm(target - pos) < self.config.waypoint_radius
         offset = target_offset(jax.random.uniform(key, (2,)), params.target_range)
         ahead, behind = extras.spawn + offset, extras.spawn - offset
         farther = jnp.linalg.norm(ahead - pos) >= jnp.linalg.norm(behind - pos)
-        new = jnp.where(farther, ahead, behind)
-        mocap = jnp.where(reached, self._marker(data.mocap_pos, new), data.mocap_pos)
-        count = extras.targets_reached + reached.astype(jnp.int32)
-        return data.replace(mocap_pos=mocap), extras.replace(targets_reached=count)
+        return jnp.where(farther, ahead, behind)
 
     def _reward(
         self,
