@@ -57,7 +57,7 @@ setup(
     ext_modules=[
         Extension(
             "jaxenvs.physics.native._engine",
-            sources=["jaxenvs/physics/native/engine.cc"],
+            sources=["jaxenvs/physics/native/engine.cc", "jaxenvs/physics/native/hfield.cc"],
             language="c++",
             optional=True,
         )

@@ -127,6 +127,7 @@ class CEngine:
         derived: Sequence[str] | None = None,
     ) -> None:
         check_model(model)
+        native.prepare(model)
         if threads < 1:
             raise ValueError(f"threads must be >= 1, got {threads}")
         self.model = model

@@ -20,10 +20,14 @@ from typing import Protocol
 
 import mujoco
 
+from jaxenvs.physics.native import HFIELD_SURFACE
+
 #: the floor's friction (sliding, torsional, rolling) and the default ground's size (m)
 FLOOR_FRICTION = (1.0, 0.005, 0.0001)
 #: the name of the model ``<numeric>`` MJX reads as its contact budget (``Scene.max_contacts``)
 MAX_CONTACTS = "max_contact_points"
+#: :attr:`Scene.hfield_contact`'s choices
+HFIELD_CONTACTS = ("surface", "mujoco")
 
 
 class Ground(Protocol):
@@ -124,6 +128,15 @@ class Scene:
         every contact slot of the scene's pairs (each pair has as many slots as its
         collision function returns: 1 for a sphere on a plane, 4 for a sphere on a
         heightfield). MuJoCo C keeps every contact whatever this says.
+      hfield_contact: how MuJoCo C collides the robot's spheres with a heightfield ground:
+        ``"surface"`` (jaxenvs' collider, :func:`jaxenvs.physics.native.hfield_surface`:
+        the sphere on the triangles MuJoCo draws, one contact per local minimum of the
+        distance, so flat cells give one vertical contact) or ``"mujoco"`` (MuJoCo's own,
+        the cells' triangular prisms as convex solids: normals tilted by up to 60 degrees
+        on flat cells, docs/terrain.md). ``"surface"`` writes the model ``<numeric>``
+        :data:`~jaxenvs.physics.native.HFIELD_SURFACE`; the C engine installs the collider
+        when it meets it (or, where the native library is not built, warns and steps
+        MuJoCo's). MJX has its own collider either way.
     """
 
     robot: Path
@@ -132,10 +145,15 @@ class Scene:
     markers: tuple[Marker, ...] = ()
     light: bool = True
     max_contacts: int = 0
+    hfield_contact: str = "surface"
 
     def __post_init__(self) -> None:
         if self.max_contacts < 0:
             raise ValueError(f"max_contacts must be >= 0, got {self.max_contacts}")
+        if self.hfield_contact not in HFIELD_CONTACTS:
+            raise ValueError(
+                f"hfield_contact must be one of {HFIELD_CONTACTS}, got {self.hfield_contact!r}"
+            )
 
     @property
     def name(self) -> str:
@@ -173,7 +191,10 @@ class Scene:
             )
         if self.max_contacts:
             spec.add_numeric(name=MAX_CONTACTS, data=[float(self.max_contacts)])
+        hfields = any(g.type == mujoco.mjtGeom.mjGEOM_HFIELD for g in spec.worldbody.geoms)
+        if hfields and self.hfield_contact == "surface":
+            spec.add_numeric(name=HFIELD_SURFACE, data=[1.0])
         return spec
 
 
-__all__ = ["FLOOR_FRICTION", "MAX_CONTACTS", "Flat", "Ground", "Marker", "Scene"]
+__all__ = ["FLOOR_FRICTION", "HFIELD_CONTACTS", "MAX_CONTACTS", "Flat", "Ground", "Marker", "Scene"]

@@ -294,6 +294,7 @@ def test_the_observation_is_blind(env) -> None:
         ("terrain_border", 0.01),
         ("terrain_types", ("flat", "moon")),
         ("terrain_spacing", 0.0),
+        ("hfield_contact", "prisms"),
     ],
 )
 def test_bad_config_is_named(field, value) -> None:

@@ -19,6 +19,7 @@ import functools
 import hashlib
 import importlib.metadata
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -93,6 +94,66 @@ def library() -> ctypes.CDLL | None:
     )
     _learn_default_clock(lib)
     return lib
+
+
+#: the model ``<numeric>`` (value 1) that asks MuJoCo C for jaxenvs' heightfield collider
+HFIELD_SURFACE = "jaxenvs_hfield_surface"
+
+
+@functools.lru_cache(maxsize=1)
+def hfield_surface() -> str | None:
+    """Install jaxenvs' sphere-on-heightfield collider in MuJoCo C (``hfield.cc`` beside
+    this file) and return the name of the model ``<numeric>`` that asks for it
+    (:data:`HFIELD_SURFACE`); ``None`` where the library is not built or not built for this
+    process's MuJoCo.
+
+    Installed once per process in MuJoCo's collision table, for every MuJoCo C step of the
+    process, native or through the Python callback (``JAXENVS_NATIVE`` does not turn it
+    off); a model without the numeric keeps MuJoCo's own collider.
+    """
+    path = _built_file()
+    if path is None:
+        return None
+    import mujoco
+
+    try:
+        lib = ctypes.CDLL(str(path))
+    except OSError:
+        return None
+    if lib.jaxenvs_mujoco_header_version() != mujoco.mj_version():
+        return None
+    lib.jaxenvs_install_hfield_surface.restype = ctypes.c_char_p
+    name = lib.jaxenvs_install_hfield_surface().decode()
+    if name != HFIELD_SURFACE:
+        raise RuntimeError(f"the native library asks for {name!r}, not {HFIELD_SURFACE!r}")
+    return name
+
+
+def wants_hfield_surface(model: object) -> bool:
+    """True if ``model`` (a :class:`mujoco.MjModel`) asks for the heightfield collider."""
+    import mujoco
+
+    i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, HFIELD_SURFACE)
+    return i >= 0 and float(model.numeric_data[model.numeric_adr[i]]) != 0  # type: ignore[attr-defined]
+
+
+def prepare(model: object) -> None:
+    """Ready MuJoCo C for stepping ``model``: install the heightfield collider if it asks
+    for it (:func:`hfield_surface`), or warn, once a process, that MuJoCo's own collider
+    steps it (the native library is not built)."""
+    if wants_hfield_surface(model) and hfield_surface() is None:
+        _warn_no_surface()
+
+
+@functools.lru_cache(maxsize=1)
+def _warn_no_surface() -> None:
+    warnings.warn(
+        "a model asks for jaxenvs' heightfield collider (hfield_contact='surface') but the "
+        "native library is not built for this MuJoCo: MuJoCo C collides its feet with the "
+        "heightfield's prisms instead (tilted normals on flat cells, docs/terrain.md). " + _FIX,
+        RuntimeWarning,
+        stacklevel=4,
+    )
 
 
 def _learn_default_clock(lib: ctypes.CDLL) -> None:

@@ -184,15 +184,18 @@ class Hexapod(_HexapodServos):
         ground: Ground | None = None,
         markers: tuple[Marker, ...] = (),
         max_contacts: int = 0,
+        hfield_contact: str = "surface",
     ) -> Scene:
         """The hexapod standing on ``ground`` (default: a flat floor), its feet paired with
-        it, with a task's ``markers`` and MJX's contact budget (``Scene.max_contacts``)."""
+        it, with a task's ``markers``, MJX's contact budget (``Scene.max_contacts``) and
+        MuJoCo C's collider on a heightfield (``Scene.hfield_contact``)."""
         return Scene(
             self.xml,
             ground or Flat(),
             contacts=self.feet,
             markers=markers,
             max_contacts=max_contacts,
+            hfield_contact=hfield_contact,
         )
 
     def qpos(self, pos: jax.Array, quat: jax.Array, joints: jax.Array) -> jax.Array:

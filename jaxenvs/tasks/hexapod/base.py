@@ -18,7 +18,7 @@ from jaxenvs.core import Env, TaskConfig
 from jaxenvs.physics import resolve_engine
 from jaxenvs.robots.base import Readings, RobotTask
 from jaxenvs.robots.hexapod import Hexapod, HexapodRanges
-from jaxenvs.scenes import Ground, Marker
+from jaxenvs.scenes import Ground, Marker, Scene
 from jaxenvs.tasks import rewards
 
 if TYPE_CHECKING:
@@ -218,9 +218,14 @@ class HexapodTask(RobotTask, Env[ConfigT], Generic[ConfigT]):
             config.timestep,
             config.substeps,
             edit=self.model_edit(config),
-            scene=self.robot.scene(ground, markers, config.max_contacts),
+            scene=self.scene(config, ground, markers),
         )
         super().__init__(config, sim)
+
+    def scene(self, config: ConfigT, ground: Ground | None, markers: tuple[Marker, ...]) -> Scene:
+        """The robot on ``ground`` with ``markers`` and the config's MJX contact budget (a
+        task with more to say of its scene extends it)."""
+        return self.robot.scene(ground, markers, config.max_contacts)
 
     def model_edit(self, config: ConfigT) -> Callable[[mujoco.MjModel], None]:
         """The edit of the host model: the config's contact model (:func:`contact_edit`)

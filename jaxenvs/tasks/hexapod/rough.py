@@ -71,6 +71,7 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import State
+from jaxenvs.scenes import HFIELD_CONTACTS, Ground, Marker, Scene
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, TerrainConfigError, generate
 from jaxenvs.tasks.hexapod.base import HexapodTask
@@ -141,6 +142,10 @@ class TerrainFields:
       min_init_level, max_init_level: an env's first level is uniform in this range.
       spawn_types: the terrain types an env may be given (empty: every column).
       curriculum: move the levels after each episode (False: they stay as drawn).
+      hfield_contact: how MuJoCo C collides the feet with the heightfield
+        (:attr:`jaxenvs.scenes.Scene.hfield_contact`): ``"surface"`` (jaxenvs' collider:
+        a flat cell gives one vertical contact) or ``"mujoco"`` (MuJoCo's prisms). MJX
+        has its own collider either way.
     """
 
     episode_length: int = 400
@@ -157,6 +162,7 @@ class TerrainFields:
     max_init_level: int = 2
     spawn_types: tuple[str, ...] = ()
     curriculum: bool = True
+    hfield_contact: str = "surface"
 
     def terrain_config(self) -> TerrainConfig:
         """The terrain generator's config (its other fields at their defaults)."""
@@ -185,6 +191,11 @@ class TerrainFields:
         )
         foreign = sorted(set(self.spawn_types) - set(self.terrain_types))
         require(not foreign, "spawn_types", f"{foreign} not among terrain_types")
+        require(
+            self.hfield_contact in HFIELD_CONTACTS,
+            "hfield_contact",
+            f"must be one of {HFIELD_CONTACTS}",
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -276,6 +287,11 @@ class TerrainTask(HexapodTask[Any]):
         ]
         self._spawn_columns = jnp.asarray(allowed, jnp.int32)
         return self.terrain
+
+    def scene(self, config: Any, ground: Ground | None, markers: tuple[Marker, ...]) -> Scene:
+        """The flat task's scene with the config's collider under MuJoCo C."""
+        base = super().scene(config, ground, markers)
+        return dataclasses.replace(base, hfield_contact=config.hfield_contact)
 
     def model_edit(self, config: Any) -> Callable[[mujoco.MjModel], None]:
         """The flat task's edit (the contact model:
