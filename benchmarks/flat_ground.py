@@ -31,6 +31,7 @@ import results_io
 import rough_seeds
 
 from jaxenvs.core import BatchedEnv
+from jaxenvs.scenes import HFIELD_CONTACTS
 from jaxenvs.tasks.hexapod.joystick import HexapodJoystick, JoystickConfig
 from jaxenvs.tasks.hexapod.rough import HexapodJoystickRough, RoughCarry, TerrainTask
 from jaxenvs.tasks.hexapod.walk import HexapodWalk, WalkConfig
@@ -62,9 +63,11 @@ def on_ground(rough: TerrainTask, spacing: float | None, steps: int) -> Any:
     return type(rough)(config)
 
 
-def measure(run: str, physics: str | None, n: int, seed: int) -> tuple[str, list[dict[str, Any]]]:
+def measure(
+    run: str, physics: str | None, n: int, seed: int, hfield_contact: str | None = None
+) -> tuple[str, list[dict[str, Any]]]:
     """The run's task id and one row per ground (module docstring)."""
-    env_id, rough, act = rough_seeds.eval_env(run, physics)
+    env_id, rough, act = rough_seeds.eval_env(run, physics, hfield_contact=hfield_contact)
     steps = round(SECONDS / rough.control_dt)
     keys = jax.random.split(jax.random.key(seed), n)
     rows = []
@@ -79,7 +82,9 @@ def measure(run: str, physics: str | None, n: int, seed: int) -> tuple[str, list
             env, act, rough_seeds.STEP_INFO[env_id], state, params, steps
         )
         figures = rough_seeds.figures({k: np.asarray(v) for k, v in out.items()}, SECONDS / 60)
-        rows.append({"ground": name, "physics": env.physics, "envs": n} | figures)
+        contact = "plane" if spacing is None else rough.config.hfield_contact
+        row = {"ground": name, "physics": env.physics, "hfield_contact": contact, "envs": n}
+        rows.append(row | figures)
         print(json.dumps(rows[-1]), flush=True)
     return env_id, rows
 
@@ -90,9 +95,15 @@ def main() -> None:
     parser.add_argument("--physics", choices=("mjx", "c"), default=None)
     parser.add_argument("--envs", type=int, default=280)
     parser.add_argument("--seed", type=int, default=123)
+    parser.add_argument(
+        "--hfield-contact",
+        choices=HFIELD_CONTACTS,
+        default=None,
+        help="MuJoCo C's heightfield collider (default: the run's config's)",
+    )
     parser.add_argument("--json", metavar="NAME", help=results_io.HELP)
     args = parser.parse_args()
-    env_id, rows = measure(args.run_dir, args.physics, args.envs, args.seed)
+    env_id, rows = measure(args.run_dir, args.physics, args.envs, args.seed, args.hfield_contact)
     if args.json:
         rec = results_io.record(
             args.json,

@@ -8,7 +8,8 @@ engine collides the sphere with the triangles (MJX) or the triangular prisms (Mu
 under it, and near a cell's edge the normal can tilt. Per band of penetration: the share
 of placements with a contact whose normal's vertical component is below 0.99, the lowest
 such component, and the mean contact count. MuJoCo C is also run with MPR instead of the
-native CCD and with a tighter CCD tolerance.
+native CCD and with a tighter CCD tolerance, and with jaxenvs' surface collider
+(``jaxenvs.physics.native.hfield_surface``, the terrain tasks' default under MuJoCo C).
 
     python benchmarks/hfield_normals.py --points 400 --json hfield_normals_cpu2
 
@@ -28,6 +29,8 @@ import numpy as np
 import results_io
 from mujoco import mjx
 
+from jaxenvs.physics import native
+
 FOOT = 0.012
 XML = f"""
 <mujoco>
@@ -45,8 +48,15 @@ GROUND = 0.05
 BANDS = ((0.0, 0.003), (0.003, 0.006), (0.006, 0.012))
 
 
-def model() -> mujoco.MjModel:
-    m = mujoco.MjModel.from_xml_string(XML)
+def model(surface: bool = False) -> mujoco.MjModel:
+    """The heightfield and the foot; ``surface``: the model asks for jaxenvs' collider."""
+    xml = XML
+    if surface:
+        name = native.hfield_surface()
+        if name is None:
+            raise SystemExit("jaxenvs' native library is not built: no surface collider")
+        xml = XML.replace("<asset>", f'<custom><numeric name="{name}" data="1"/></custom><asset>')
+    m = mujoco.MjModel.from_xml_string(xml)
     m.hfield_data[:] = 0.5
     return m
 
@@ -125,13 +135,15 @@ def main() -> None:
     m = model()
     m.opt.ccd_tolerance, m.opt.ccd_iterations = 1e-9, 200
     found += rows("MuJoCo C, tight CCD", depth, *c_normals(m, qpos))
+    found += rows("MuJoCo C, jaxenvs surface", depth, *c_normals(model(surface=True), qpos))
     found += rows("MJX", depth, *mjx_normals(model(), qpos))
     if args.json:
         rec = results_io.record(
             args.json,
             "contact normals of a 1.2 cm sphere on a flat heightfield of 2.5 cm cells",
             found,
-            engine="MuJoCo C (native CCD, MPR, tight CCD) and MJX on the CPU",
+            engine="MuJoCo C (native CCD, MPR, tight CCD, jaxenvs' surface collider) and MJX "
+            "on the CPU",
             notes=f"{args.points} placements, seed {args.seed}, depth uniform in 0-12 mm",
         )
         results_io.write(args.json, rec)

@@ -27,16 +27,19 @@ body's mean velocity over the control step in its heading frame) and
 ``tracking_error_yaw`` (the same of the yaw rate, rad/s). For the walker, instead of the
 tracking errors: ``speed`` (the mean over the env-steps while up of the progress toward the
 target in force, m/s) and ``targets_per_minute`` (targets reached while up, per env and
-minute of the episode). It writes ``RUN/rough_eval_<physics>.json``.
+minute of the episode). It writes ``RUN/rough_eval_<physics>.json`` (with
+``--hfield-contact mujoco`` under MuJoCo C: ``RUN/rough_eval_c_mujoco.json``, the table's
+``mujoco_c_prisms``; the C evals before that option existed used MuJoCo's collider).
 
 ``table`` collects the eval files, each run's summary.json, progress.csv and config.yaml
 into one row per run: ``seed``, ``train_seconds`` (the run's wall, compile included),
 ``final_mean_level`` (progress.csv's ``level`` of the last chunk: the mean over the
 training envs), ``first_chunk_mean_level`` (the same of the first chunk), ``levels``,
 ``chunks`` of ``num_chunks`` trained and ``finished`` (False for a run stopped early),
-and for ``mjx``, ``mjx_randomized``, ``mujoco_c`` and ``mujoco_c_randomized`` a dict
-with ``mid`` and ``top``, each holding the task's figures (``fell_fraction`` and the
-tracking errors, or the walker's ``speed`` and ``targets_per_minute``) and
+and for ``mjx``, ``mjx_randomized``, ``mujoco_c``, ``mujoco_c_randomized`` and (where
+that eval exists) ``mujoco_c_prisms`` a dict with ``mid`` and ``top``, each holding the
+task's figures (``fell_fraction`` and the tracking errors, or the walker's ``speed`` and
+``targets_per_minute``) and
 ``mid_fell_by_type`` (each terrain type's ``fell_fraction`` at the middle level). The runs
 of one table are of one task.
 """
@@ -58,6 +61,7 @@ import results_io
 
 from jaxenvs.core import BatchedEnv
 from jaxenvs.run import runner
+from jaxenvs.scenes import HFIELD_CONTACTS
 from jaxenvs.tasks.hexapod.rough import RoughCarry, TerrainTask
 
 #: each task's figures, and the per-step ``info`` each reads (module docstring)
@@ -69,20 +73,26 @@ STEP_INFO = {
     "HexapodJoystickRough-v0": {"lin": "lin_error", "yaw": "yaw_error"},
     "HexapodWalkRough-v0": {"progress": "progress", "targets": "targets_reached"},
 }
-#: (record field, engine, params group) of each bench in a ``table`` row
+#: (record field, eval, params group) of each bench in a ``table`` row; the eval ``c_mujoco``
+#: is MuJoCo C with MuJoCo's own heightfield collider (``--hfield-contact mujoco``)
 BENCHES = (
     ("mjx", "mjx", "default"),
     ("mjx_randomized", "mjx", "randomized"),
     ("mujoco_c", "c", "default"),
     ("mujoco_c_randomized", "c", "randomized"),
+    ("mujoco_c_prisms", "c_mujoco", "default"),
 )
 
 
 def eval_env(
-    run_dir: str, physics: str | None, max_contacts: int | None = None
+    run_dir: str,
+    physics: str | None,
+    max_contacts: int | None = None,
+    hfield_contact: str | None = None,
 ) -> tuple[str, TerrainTask, Any]:
     """The run's id, its env as ``eval`` measures it (module docstring; with MJX's contact
-    budget ``max_contacts`` instead of the run's, if given) and its greedy policy."""
+    budget ``max_contacts`` and MuJoCo C's ``hfield_contact`` instead of the run's, if
+    given) and its greedy policy."""
     env_id, env, act = runner.load_policy(run_dir, physics)
     if env_id not in FIGURES or not isinstance(env, TerrainTask):
         raise SystemExit(f"{run_dir} is a run of {env_id}, not of {' or '.join(FIGURES)}")
@@ -96,6 +106,7 @@ def eval_env(
         curriculum=False,
         **off,
         **({} if max_contacts is None else {"max_contacts": max_contacts}),
+        **({} if hfield_contact is None else {"hfield_contact": hfield_contact}),
     )
     return env_id, type(env)(config), act
 
@@ -176,9 +187,10 @@ def evaluate(
     seed: int,
     seconds: float,
     max_contacts: int | None = None,
+    hfield_contact: str | None = None,
 ) -> dict[str, Any]:
     """The figures of one run (module docstring)."""
-    env_id, env, act = eval_env(run_dir, physics, max_contacts)
+    env_id, env, act = eval_env(run_dir, physics, max_contacts, hfield_contact)
     steps = round(seconds / env.control_dt)
     if steps >= env.config.episode_length:
         env = type(env)(dataclasses.replace(env.config, episode_length=steps + 1))
@@ -197,6 +209,7 @@ def evaluate(
         "top_level": c.levels - 1,
         "types": list(c.terrain_types),
         "max_contacts": c.max_contacts,
+        "hfield_contact": c.hfield_contact,
         "wall_seconds": round(time.perf_counter() - start, 2),  # compile included
     }
     types = np.arange(envs) % len(c.terrain_types)
@@ -212,8 +225,11 @@ def evaluate(
     return result
 
 
-def eval_file(physics: str) -> str:
-    return f"rough_eval_{physics}.json"
+def eval_file(physics: str, hfield_contact: str = "surface") -> str:
+    """``rough_eval_<physics>.json``, ``rough_eval_c_mujoco.json`` for MuJoCo C with
+    MuJoCo's own heightfield collider."""
+    tail = "_mujoco" if physics == "c" and hfield_contact == "mujoco" else ""
+    return f"rough_eval_{physics}{tail}.json"
 
 
 def chunk_level(run: Path, first: bool = False) -> float:
@@ -232,10 +248,11 @@ def row(run_dir: str) -> dict[str, Any]:
     if config.env_id not in FIGURES:
         raise SystemExit(f"table: {run_dir} is a run of {config.env_id}, not a terrain task")
     summary = json.loads((run / runner.SUMMARY_FILE).read_text())
+    files = {"mjx": eval_file("mjx"), "c": eval_file("c"), "c_mujoco": eval_file("c", "mujoco")}
     evals = {
-        physics: json.loads((run / eval_file(physics)).read_text())
-        for physics in ("mjx", "c")
-        if (run / eval_file(physics)).exists()
+        name: json.loads((run / file).read_text())
+        for name, file in files.items()
+        if (run / file).exists()
     }
     out: dict[str, Any] = {
         "env_id": config.env_id,
@@ -281,6 +298,12 @@ def _parser() -> argparse.ArgumentParser:
         help="MJX's contact budget for the eval (0: every contact; default: the run's)",
     )
     ev.add_argument(
+        "--hfield-contact",
+        choices=HFIELD_CONTACTS,
+        default=None,
+        help="MuJoCo C's heightfield collider for the eval (default: the run's config's)",
+    )
+    ev.add_argument(
         "--out", default=None, help="the eval file (default: RUN/rough_eval_<physics>.json)"
     )
     tb = sub.add_parser("table", help="one row per evaluated run")
@@ -299,9 +322,16 @@ def main(argv: list[str] | None = None) -> None:
         if args.envs < 1 or not 0 < args.seconds <= 600:
             raise SystemExit("--envs must be >= 1 and --seconds in (0, 600]")
         result = evaluate(
-            args.run_dir, args.physics, args.envs, args.seed, args.seconds, args.max_contacts
+            args.run_dir,
+            args.physics,
+            args.envs,
+            args.seed,
+            args.seconds,
+            args.max_contacts,
+            args.hfield_contact,
         )
-        path = Path(args.out or Path(args.run_dir) / eval_file(result["physics"]))
+        name = eval_file(result["physics"], result["hfield_contact"])
+        path = Path(args.out or Path(args.run_dir) / name)
         path.write_text(json.dumps(result, indent=2) + "\n")
         brief = {k: v for k, v in result.items() if k not in ("default", "randomized")}
         for params in ("default", "randomized"):

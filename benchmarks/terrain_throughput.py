@@ -3,13 +3,15 @@
 Each batch size steps ``HexapodJoystick-v0`` (flat) and ``HexapodJoystickRough-v0`` (its
 default terrain, the contact solve its config picks for the engine: ``solver: auto``), and
 with ``--solvers`` the rough task with each named solver and with ``--max-contacts`` with
-each MJX contact budget (``max_contacts``; 0: every slot) too, side by side: a jitted
+each MJX contact budget (``max_contacts``; 0: every slot) and with ``--hfield-contacts``
+with each of MuJoCo C's heightfield colliders (``hfield_contact``) too, side by side: a jitted
 ``lax.scan`` of ``--steps`` auto-resetting batched steps with uniform random actions, the
 state donated, timed over ``--rounds`` rounds interleaved across the variants (median).
 Rows: one per variant and batch, with ``x_flat``, its rate over the flat task's at that
 batch in the same process.
 
-    python benchmarks/terrain_throughput.py --envs 1024 --physics c --json terrain_throughput_cpu2
+    python benchmarks/terrain_throughput.py --envs 1024 --physics c --solvers cg \
+        --hfield-contacts mujoco --json terrain_throughput_cpu2
     python benchmarks/terrain_throughput.py --envs 8192 65536 --solvers cg \\
         --json terrain_throughput_gpu
     python benchmarks/terrain_throughput.py --envs 8192 65536 --physics mjx --max-contacts 0
@@ -27,6 +29,7 @@ import jax
 import results_io
 
 import jaxenvs
+from jaxenvs.scenes import HFIELD_CONTACTS
 
 FLAT, ROUGH = "HexapodJoystick-v0", "HexapodJoystickRough-v0"
 
@@ -48,13 +51,21 @@ def rollout(
 
 
 def measure(
-    n: int, steps: int, rounds: int, physics: str, solvers: list[str], caps: list[int]
+    n: int,
+    steps: int,
+    rounds: int,
+    physics: str,
+    solvers: list[str],
+    caps: list[int],
+    hfield_contacts: tuple[str, ...] = (),
 ) -> list[dict]:
     """Rows for batch ``n``: flat, rough (its config's defaults), rough with each of
-    ``solvers`` and with each of ``caps`` as its ``max_contacts`` (MJX's contact budget)."""
+    ``solvers``, with each of ``caps`` as its ``max_contacts`` (MJX's contact budget) and
+    with each of ``hfield_contacts`` as its ``hfield_contact`` (MuJoCo C's collider)."""
     variants = [("flat", FLAT, {}), ("rough", ROUGH, {})]
     variants += [(f"rough_{s}", ROUGH, {"solver": s}) for s in solvers]
     variants += [(f"rough_contacts{c}", ROUGH, {"max_contacts": c}) for c in caps]
+    variants += [(f"rough_{h}_hfield", ROUGH, {"hfield_contact": h}) for h in hfield_contacts]
     runs, rows = {}, {}
     for name, env_id, overrides in variants:
         fn, state = rollout(env_id, n, steps, physics, **overrides)
@@ -102,13 +113,26 @@ def main() -> None:
         help="rough also with these max_contacts (0: every contact slot; MJX only, "
         "MuJoCo C keeps every contact)",
     )
+    parser.add_argument(
+        "--hfield-contacts",
+        nargs="*",
+        default=[],
+        choices=HFIELD_CONTACTS,
+        help="rough also with these hfield_contact (MuJoCo C's heightfield collider)",
+    )
     parser.add_argument("--json", help=results_io.HELP)
     args = parser.parse_args()
     rows = [
         row
         for n in args.envs
         for row in measure(
-            n, args.steps, args.rounds, args.physics, args.solvers, args.max_contacts
+            n,
+            args.steps,
+            args.rounds,
+            args.physics,
+            args.solvers,
+            args.max_contacts,
+            tuple(args.hfield_contacts),
         )
     ]
     if args.json:

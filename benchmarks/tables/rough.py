@@ -12,6 +12,7 @@ BENCHES = (
     ("mjx_randomized", "MJX, randomised"),
     ("mujoco_c", "MuJoCo C"),
     ("mujoco_c_randomized", "C, randomised"),
+    ("mujoco_c_prisms", "C, MuJoCo's heightfield collider"),
 )
 #: the targets at the middle level: falls, linear and yaw RMS tracking errors
 MID_FELL, MID_LIN, MID_YAW = 0.05, 0.15, 0.30
@@ -175,25 +176,45 @@ def flat_ground(recs: list[Rec]) -> Cells:
     rows = [r for rec in recs for r in rec["rows"]]
     walker = "speed" in rows[0]
 
+    def collider(r: Row) -> str:
+        """MuJoCo C's heightfield collider (rows before the choice existed: MuJoCo's)."""
+        if r["physics"] != "c" or r["ground"] == "plane":
+            return "-"
+        return {"surface": "jaxenvs' surface", "mujoco": "MuJoCo's prisms"}[
+            r.get("hfield_contact", "mujoco")
+        ]
+
     def cells(r: Row) -> list[str]:
         if walker:
             figures = [f"{r['speed']:.2f}", f"{r['targets_per_minute']:.1f}"]
         else:
             figures = [f"{r['tracking_error_lin']:.3f}", f"{r['tracking_error_yaw']:.3f}"]
-        return [r["physics"], r["ground"], str(r["envs"]), pct(r["fell_fraction"]), *figures]
+        return [
+            r["physics"],
+            r["ground"],
+            collider(r),
+            str(r["envs"]),
+            pct(r["fell_fraction"]),
+            *figures,
+        ]
 
     named = (
         ["m/s toward the target", "targets a minute"]
         if walker
         else ["lin error RMS (m/s)", "yaw error RMS (rad/s)"]
     )
-    head = ["engine", "ground", "envs", "fell in 20 s", *named]
+    head = ["engine", "ground", "C heightfield collider", "envs", "fell in 20 s", *named]
     return each_row(head, rows, cells)
 
 
 TABLES = {
-    "walker-ground": Table(("walker_ground_cpu2", "walker_ground_cpu2_mjx"), flat_ground),
-    "joystick-ground": Table(("joystick_ground_cpu2", "joystick_ground_cpu2_mjx"), flat_ground),
+    "walker-ground": Table(
+        ("walker_ground_cpu2", "walker_ground_cpu2_surface", "walker_ground_cpu2_mjx"), flat_ground
+    ),
+    "joystick-ground": Table(
+        ("joystick_ground_cpu2", "joystick_ground_cpu2_surface", "joystick_ground_cpu2_mjx"),
+        flat_ground,
+    ),
     "hfield-normals": Table(("hfield_normals_cpu2",), hfield_normals),
     "walker-rough-training": Table(("ppo_walker_rough_seeds_h200",), walker_rough_training),
     "walker-rough-walking": Table(("ppo_walker_rough_seeds_h200",), walker_rough_walking),
