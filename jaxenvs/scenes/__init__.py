@@ -20,6 +20,7 @@ from typing import Protocol
 
 import mujoco
 
+from jaxenvs.physics import native
 from jaxenvs.physics.native import HFIELD_SURFACE
 
 #: the floor's friction (sliding, torsional, rolling) and the default ground's size (m)
@@ -134,9 +135,9 @@ class Scene:
         distance, so flat cells give one vertical contact) or ``"mujoco"`` (MuJoCo's own,
         the cells' triangular prisms as convex solids: normals tilted by up to 60 degrees
         on flat cells, docs/terrain.md). ``"surface"`` writes the model ``<numeric>``
-        :data:`~jaxenvs.physics.native.HFIELD_SURFACE`; the C engine installs the collider
-        when it meets it (or, where the native library is not built, warns and steps
-        MuJoCo's). MJX has its own collider either way.
+        :data:`~jaxenvs.physics.native.HFIELD_SURFACE` and installs the collider in the
+        process (where the native library is not built, the C engine warns when it meets
+        such a model and steps MuJoCo's). MJX has its own collider either way.
     """
 
     robot: Path
@@ -194,6 +195,7 @@ class Scene:
         hfields = any(g.type == mujoco.mjtGeom.mjGEOM_HFIELD for g in spec.worldbody.geoms)
         if hfields and self.hfield_contact == "surface":
             spec.add_numeric(name=HFIELD_SURFACE, data=[1.0])
+            native.hfield_surface()  # installed now, for any MuJoCo C step of the process
         return spec
 
 

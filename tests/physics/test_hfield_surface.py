@@ -119,6 +119,107 @@ def test_rough_ground_contacts_lie_on_the_reported_ground(numeric: str) -> None:
     assert hits >= 200
 
 
+def _triangles(heights: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """``(2 (nrow - 1) (ncol - 1), 3, 3)``: MuJoCo's triangles of a heightfield's samples
+    (``hfield_data``, row 0 at the lowest y), in the heightfield's frame."""
+    nrow, ncol = heights.shape
+    x = np.linspace(-size[0], size[0], ncol)
+    y = np.linspace(-size[1], size[1], nrow)
+    v = np.stack([*np.meshgrid(x, y), heights * size[2]], axis=-1)
+    a, b, c, d = v[:-1, :-1], v[:-1, 1:], v[1:, 1:], v[1:, :-1]
+    return np.concatenate([np.stack([a, b, c], -2), np.stack([a, d, c], -2)]).reshape(-1, 3, 3)
+
+
+def _closest(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Each triangle's point closest to ``p``, by brute force: the face's projection where
+    inside, else the closest of the three edges' closest points."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    proj = p - np.sum((p - a) * n, axis=1, keepdims=True) * n
+    # barycentric coordinates of the projection
+    v0, v1, v2 = b - a, c - a, proj - a
+    d00, d01, d11 = (v0 * v0).sum(1), (v0 * v1).sum(1), (v1 * v1).sum(1)
+    d20, d21 = (v2 * v0).sum(1), (v2 * v1).sum(1)
+    den = d00 * d11 - d01 * d01
+    v, w = (d11 * d20 - d01 * d21) / den, (d00 * d21 - d01 * d20) / den
+    inside = (v >= 0) & (w >= 0) & (v + w <= 1)
+    best = proj.copy()
+    gap = np.full(len(tri), np.inf)
+    for s, e in ((a, b), (b, c), (c, a)):
+        t = np.clip(((p - s) * (e - s)).sum(1) / ((e - s) ** 2).sum(1), 0, 1)[:, None]
+        x = s + t * (e - s)
+        dist = np.linalg.norm(p - x, axis=1)
+        closer = ~inside & (dist < gap)
+        best[closer], gap[closer] = x[closer], dist[closer]
+    return best
+
+
+@pytest.mark.parametrize("euler", ["0 0 0", "30 20 50"])
+def test_random_ground_agrees_with_a_brute_force(numeric: str, euler: str) -> None:
+    """Random samples, a heightfield geom turned or not, spheres placed anywhere from half
+    a radius below the surface to above it: from above, the deepest contact is the true
+    distance to the surface (none where it is out of reach) and every contact's point is
+    on the surface; from below, one contact, pointing up."""
+    rng = np.random.default_rng(3)
+    nrow, ncol, radius = 7, 9, 0.02
+    data = " ".join(f"{h:.6f}" for h in rng.uniform(0, 1, nrow * ncol))
+    m = mujoco.MjModel.from_xml_string(
+        f"""<mujoco><custom><numeric name="{numeric}" data="1"/></custom><asset>
+        <hfield name="h" nrow="{nrow}" ncol="{ncol}" size="0.15 0.1 0.05 0.05"
+          elevation="{data}"/></asset><worldbody>
+        <geom type="hfield" hfield="h" pos="0.1 -0.2 0.3" euler="{euler}"/>
+        <body><freejoint/><geom type="sphere" size="{radius}" mass="0.01"/></body>
+        </worldbody></mujoco>"""
+    )
+    size = m.hfield_size[0]
+    tris = _triangles(np.asarray(m.hfield_data, np.float64).reshape(nrow, ncol), size)
+    d = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, d)
+    pos, rot = d.geom_xpos[0].copy(), d.geom_xmat[0].reshape(3, 3).copy()
+    seen = {"above": 0, "below": 0, "none": 0}
+    for _ in range(300):
+        p = np.array([*rng.uniform(-size[:2], size[:2]), 0.0])
+        (under,) = [t for t in tris if _on(p[:2], t)][:1]
+        n = np.cross(under[1] - under[0], under[2] - under[0])
+        n /= np.linalg.norm(n) * np.sign(n[2])
+        ground = under[0][2] - ((p[:2] - under[0][:2]) @ n[:2]) / n[2]
+        p[2] = ground + rng.uniform(-0.5, 1.5) * radius
+        found = contacts(m, pos + rot @ p)
+        local = [(dist, rot.T @ (x - pos), rot.T @ normal) for dist, x, normal in found]
+        if p[2] < ground:
+            seen["below"] += 1
+            assert len(local) == 1 and local[0][2][2] > 0, (p, local)
+            continue
+        true = np.linalg.norm(_closest(p, tris) - p, axis=1).min() - radius
+        if true >= 0:
+            seen["none"] += 1
+            assert not local, (p, true, local)
+            continue
+        seen["above"] += 1
+        assert min(dist for dist, _, _ in local) == pytest.approx(true, abs=1e-6)
+        for dist, x, normal in local:
+            q = x - normal * dist / 2
+            assert any(_on(q[:2], t) and abs(_z(q[:2], t) - q[2]) < 1e-6 for t in tris)
+            assert np.linalg.norm(p - q) - radius == pytest.approx(dist, abs=1e-6)
+    assert min(seen.values()) >= 20, seen
+
+
+def _on(xy: np.ndarray, tri: np.ndarray) -> bool:
+    """True if ``xy`` lies over triangle ``tri`` (within 1e-9 m)."""
+    a, b, c = tri[:, :2]
+    m = np.array([b - a, c - a]).T
+    v, w = np.linalg.solve(m, xy - a)
+    return bool(v >= -1e-9 and w >= -1e-9 and v + w <= 1 + 1e-9)
+
+
+def _z(xy: np.ndarray, tri: np.ndarray) -> float:
+    """The height of triangle ``tri``'s plane over ``xy``."""
+    a, b, c = tri
+    v, w = np.linalg.solve(np.array([b[:2] - a[:2], c[:2] - a[:2]]).T, xy - a[:2])
+    return float(a[2] + v * (b[2] - a[2]) + w * (c[2] - a[2]))
+
+
 def test_a_heightfield_scene_asks_for_it_unless_told_mujoco(numeric: str) -> None:
     flat = Terrain.from_array(np.zeros((9, 9)), 0.025)
     names = lambda m: [m.numeric(i).name for i in range(m.nnumeric)]  # noqa: E731

@@ -122,8 +122,12 @@ def hfield_surface() -> str | None:
         return None
     if lib.jaxenvs_mujoco_header_version() != mujoco.mj_version():
         return None
-    lib.jaxenvs_install_hfield_surface.restype = ctypes.c_char_p
-    name = lib.jaxenvs_install_hfield_surface().decode()
+    try:
+        install = lib.jaxenvs_install_hfield_surface
+    except AttributeError:  # a library built before the collider: not rebuilt since
+        return None
+    install.restype = ctypes.c_char_p
+    name = install().decode()
     if name != HFIELD_SURFACE:
         raise RuntimeError(f"the native library asks for {name!r}, not {HFIELD_SURFACE!r}")
     return name
@@ -134,7 +138,9 @@ def wants_hfield_surface(model: object) -> bool:
     import mujoco
 
     i = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, HFIELD_SURFACE)
-    return i >= 0 and float(model.numeric_data[model.numeric_adr[i]]) != 0  # type: ignore[attr-defined]
+    if i < 0 or model.numeric_size[i] < 1:  # type: ignore[attr-defined]
+        return False
+    return float(model.numeric_data[model.numeric_adr[i]]) != 0  # type: ignore[attr-defined]
 
 
 def prepare(model: object) -> None:

@@ -5,19 +5,21 @@
 // side the shortest way out of it is sideways, so a sphere pressed a few millimetres into
 // FLAT ground gets contact normals tilted by up to 60 degrees (benchmarks/hfield_normals.py).
 // This collider treats the heightfield as the surface it draws, MuJoCo's own triangles
-// (each cell split along the diagonal from sample (r, c) to (r + 1, c + 1)), and gives one
-// contact per local minimum of the distance from the sphere's centre to that surface:
-//   * for each triangle within reach, the closest point q to the centre p; its normal is
-//     the face's where q lies inside the triangle (also with p below the face: a deep
-//     press), (p - q) / |p - q| where q is on an edge or corner with p above the face;
-//   * a triangle's point is dropped where a triangle that holds it has a strictly closer
-//     point (not a local minimum: on flat ground an edge's tilted point is never kept),
-//     and points that coincide are kept once;
-//   * the deepest kMaxContacts are kept: on flat ground one contact with a vertical
-//     normal, against a riser's foot one on the tread and one on the riser.
-// dist is |p - q| - radius (the face's signed distance - radius for a face point), the
-// position halfway between the two surfaces, the normal from the heightfield to the
-// sphere, the tangent left to MuJoCo (zero).
+// (each cell split along the diagonal from sample (r, c) to (r + 1, c + 1)):
+//   * with the sphere's centre p above the surface at its own (x, y) (or off the field):
+//     for each triangle within reach, its closest point q; a contact for each local
+//     minimum of |p - q| over the surface (a point is dropped where any triangle holding
+//     it has a strictly closer point, so on flat ground no neighbour's tilted edge point
+//     is kept, and a point reached from behind its face never is), with the normal
+//     (p - q) / |p - q| (the face's, inside a face) and dist |p - q| - radius; points that
+//     coincide are kept once, the deepest kMaxContacts in all;
+//   * with p below the surface at its own (x, y) (pressed deeper than its radius): one
+//     contact on the triangle under p, its face's normal, dist the signed distance from
+//     the face's plane - radius, so a deep press is pushed back up, never through.
+// On flat ground that is one vertical contact as deep as the sphere is pressed; in a
+// crease (a riser's foot) one contact on each face the sphere reaches that is a local
+// minimum. The position is halfway between the two surfaces, the normal from the
+// heightfield to the sphere, the tangent left to MuJoCo (zero).
 //
 // It is installed in MuJoCo's collision table (mjCOLLISIONFUNC, public) for heightfield
 // and sphere, and used only for models that ask for it with the numeric kSurfaceNumeric
@@ -27,24 +29,29 @@
 #include <mujoco/mujoco.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <mutex>
+#include <vector>
 
 namespace {
 
 constexpr char kSurfaceNumeric[] = "jaxenvs_hfield_surface";
-constexpr int kMaxCandidates = 64;  // triangles within a foot's reach: 8 on 2.5 cm cells
+constexpr int kOnStack = 64;    // triangles within reach kept on the stack (a foot: 8)
 constexpr int kMaxContacts = 4;
-constexpr mjtNum kSame = 1e-9;      // m: points this close are one point
+constexpr mjtNum kSame = 1e-9;  // m: points and distances this close are the same
 
-mjfCollision stock = nullptr;  // MuJoCo's heightfield-sphere collider, for other models
+// MuJoCo's heightfield-sphere collider, for other models: stored before the table entry is
+// replaced, so a thread that calls the new entry sees it
+std::atomic<mjfCollision> stock{nullptr};
 std::once_flag installed;
 
-struct Candidate {
-  mjtNum dist;       // |p - q| - radius (signed for a face point)
-  mjtNum q[3];       // the closest point of the triangle, hfield frame
+struct Tri {
+  mjtNum dist;       // |p - q| (or, below the surface, the signed face distance)
+  mjtNum q[3];       // the triangle's point closest to p, hfield frame
   mjtNum normal[3];  // hfield frame, from the surface to the sphere
-  int tri;           // the triangle: 2 * (r * ncol + c) + (0 lower, 1 upper)
+  int id;            // 2 * (r * ncol + c) + (0 lower, 1 upper)
+  bool candidate;    // in reach and facing p
 };
 
 inline void Sub(mjtNum* out, const mjtNum* a, const mjtNum* b) {
@@ -95,115 +102,164 @@ bool Holds(const mjtNum* x, const mjtNum* a, const mjtNum* b, const mjtNum* c) {
   return Dot(d, d) < kSame * kSame;
 }
 
+// The upward unit normal of triangle (a, b, c).
+void FaceNormal(const mjtNum* a, const mjtNum* b, const mjtNum* c, mjtNum* n) {
+  mjtNum e1[3], e2[3];
+  Sub(e1, b, a), Sub(e2, c, a);
+  mju_cross(n, e1, e2);
+  mju_normalize3(n);
+  if (n[2] < 0) mju_scl3(n, n, -1);
+}
+
 bool Wants(const mjModel* m) {
   int id = mj_name2id(m, mjOBJ_NUMERIC, kSurfaceNumeric);
   return id >= 0 && m->numeric_size[id] > 0 && m->numeric_data[m->numeric_adr[id]] != 0;
 }
 
+// The heightfield of a model: its size, samples and the corners of its triangles.
+struct Field {
+  const mjtNum* size;
+  const float* data;
+  int nrow, ncol;
+  mjtNum dx, dy;
+
+  void Vertex(int r, int c, mjtNum* v) const {
+    v[0] = dx * c - size[0], v[1] = dy * r - size[1];
+    v[2] = data[r * ncol + c] * size[2];
+  }
+  void Corners(int id, mjtNum* a, mjtNum* b, mjtNum* c) const {
+    int cell = id / 2, r = cell / ncol, col = cell % ncol;
+    Vertex(r, col, a);
+    Vertex(r + 1, col + 1, c);
+    if (id % 2 == 0) Vertex(r, col + 1, b);  // lower: (r, c), (r, c+1), (r+1, c+1)
+    else Vertex(r + 1, col, b);               // upper: (r, c), (r+1, c), (r+1, c+1)
+  }
+  // The triangle under (x, y) and whether (x, y) is over the field at all.
+  bool Under(const mjtNum* p, int* id) const {
+    mjtNum u = (p[0] + size[0]) / dx, v = (p[1] + size[1]) / dy;
+    if (u < 0 || v < 0 || u > ncol - 1 || v > nrow - 1) return false;
+    int c = std::min(static_cast<int>(u), ncol - 2), r = std::min(static_cast<int>(v), nrow - 2);
+    *id = 2 * (r * ncol + c) + ((u - c) >= (v - r) ? 0 : 1);
+    return true;
+  }
+};
+
+// Writes contact k: surface point q, normal n (hfield frame), distance dist.
+void Emit(mjPreContact* con, const mjtNum* pos1, const mjtNum* mat1, const mjtNum* q,
+          const mjtNum* n, mjtNum dist) {
+  mjtNum mid[3];
+  for (int i = 0; i < 3; ++i) mid[i] = q[i] + n[i] * (dist / 2);
+  mju_mulMatVec3(con->normal, mat1, n);
+  mju_mulMatVec3(con->pos, mat1, mid);
+  mju_addTo3(con->pos, pos1);
+  con->dist = dist;
+  mju_zero3(con->tangent);
+}
+
 int SurfaceSphere(const mjModel* m, mjData* d, mjPreContact* con, int g1, int g2,
                   mjtNum margin) {
-  if (!Wants(m)) return stock(m, d, con, g1, g2, margin);
+  if (!Wants(m)) return stock.load(std::memory_order_acquire)(m, d, con, g1, g2, margin);
   const mjtNum* pos1 = d->geom_xpos + 3 * g1;
   const mjtNum* mat1 = d->geom_xmat + 9 * g1;
   const mjtNum radius = m->geom_size[3 * g2];
   int hid = m->geom_dataid[g1];
-  int nrow = m->hfield_nrow[hid], ncol = m->hfield_ncol[hid];
-  const mjtNum* size = m->hfield_size + 4 * hid;
-  const float* data = m->hfield_data + m->hfield_adr[hid];
+  Field f{m->hfield_size + 4 * hid, m->hfield_data + m->hfield_adr[hid], m->hfield_nrow[hid],
+          m->hfield_ncol[hid], 0, 0};
+  f.dx = 2 * f.size[0] / (f.ncol - 1), f.dy = 2 * f.size[1] / (f.nrow - 1);
 
   // the sphere's centre in the heightfield's frame
   mjtNum rel[3], p[3];
   Sub(rel, d->geom_xpos + 3 * g2, pos1);
   mju_mulMatTVec3(p, mat1, rel);
   mjtNum reach = radius + margin;
+  const mjtNum* size = f.size;
   if (p[0] - reach > size[0] || p[0] + reach < -size[0] || p[1] - reach > size[1] ||
       p[1] + reach < -size[1] || p[2] - reach > size[2] || p[2] + reach < -size[3]) {
     return 0;
   }
-  mjtNum dx = 2 * size[0] / (ncol - 1), dy = 2 * size[1] / (nrow - 1);
-  int c0 = std::max(0, static_cast<int>(std::floor((p[0] - reach + size[0]) / dx)));
-  int c1 = std::min(ncol - 1, static_cast<int>(std::ceil((p[0] + reach + size[0]) / dx)));
-  int r0 = std::max(0, static_cast<int>(std::floor((p[1] - reach + size[1]) / dy)));
-  int r1 = std::min(nrow - 1, static_cast<int>(std::ceil((p[1] + reach + size[1]) / dy)));
 
-  auto vertex = [&](int r, int c, mjtNum* v) {
-    v[0] = dx * c - size[0], v[1] = dy * r - size[1];
-    v[2] = data[r * ncol + c] * size[2];
-  };
-  auto corners = [&](int tri, mjtNum* a, mjtNum* b, mjtNum* c) {
-    int cell = tri / 2, r = cell / ncol, col = cell % ncol;
-    vertex(r, col, a);
-    vertex(r + 1, col + 1, c);
-    if (tri % 2 == 0) vertex(r, col + 1, b);  // lower: (r, c), (r, c+1), (r+1, c+1)
-    else vertex(r + 1, col, b);               // upper: (r, c), (r+1, c), (r+1, c+1)
-  };
+  // pressed below the surface at its own (x, y): the face under it pushes it back up
+  int under;
+  if (f.Under(p, &under)) {
+    mjtNum a[3], b[3], c[3], n[3], ap[3];
+    f.Corners(under, a, b, c);
+    FaceNormal(a, b, c, n);
+    Sub(ap, p, a);
+    mjtNum s = Dot(ap, n);  // along the face normal: below the surface iff below the face
+    if (s <= 0) {
+      mjtNum q[3];
+      Closest(p, a, b, c, q);  // on the face: p's projection onto it where that is inside
+      if (s - radius >= margin) return 0;
+      Emit(con, pos1, mat1, q, n, s - radius);
+      return 1;
+    }
+  }
 
-  Candidate cand[kMaxCandidates];
+  // above it: every triangle within reach
+  int c0 = std::max(0, static_cast<int>(std::floor((p[0] - reach + size[0]) / f.dx)));
+  int c1 = std::min(f.ncol - 1, static_cast<int>(std::ceil((p[0] + reach + size[0]) / f.dx)));
+  int r0 = std::max(0, static_cast<int>(std::floor((p[1] - reach + size[1]) / f.dy)));
+  int r1 = std::min(f.nrow - 1, static_cast<int>(std::ceil((p[1] + reach + size[1]) / f.dy)));
+  int count = std::max(0, (r1 - r0) * (c1 - c0) * 2);
+  Tri local[kOnStack];
+  std::vector<Tri> heap;  // a sphere over more than kOnStack triangles (not a foot)
+  if (count > kOnStack) heap.resize(count);
+  Tri* tri = count > kOnStack ? heap.data() : local;
   int n = 0;
-  for (int r = r0; r < r1 && n < kMaxCandidates; ++r) {
-    for (int c = c0; c < c1 && n < kMaxCandidates; ++c) {
-      for (int up = 0; up < 2 && n < kMaxCandidates; ++up) {
-        int tri = 2 * (r * ncol + c) + up;
-        mjtNum a[3], b[3], cc[3], q[3], e1[3], e2[3], face[3], pq[3];
-        corners(tri, a, b, cc);
-        if (std::max({a[2], b[2], cc[2]}) < p[2] - reach) continue;
-        bool inside = Closest(p, a, b, cc, q);
-        Sub(e1, b, a), Sub(e2, cc, a);
-        mju_cross(face, e1, e2);
-        mju_normalize3(face);
-        if (face[2] < 0) mju_scl3(face, face, -1);
-        Sub(pq, p, q);
-        Candidate& k = cand[n];
-        if (inside) {
-          k.dist = Dot(pq, face) - radius;
-          mju_copy3(k.normal, face);
-        } else {
-          mjtNum len = mju_norm3(pq);
-          if (Dot(pq, face) <= 0 || len < mjMINVAL) continue;  // below: another face's
-          k.dist = len - radius;
-          mju_scl3(k.normal, pq, 1 / len);
-        }
-        if (k.dist >= margin) continue;
-        mju_copy3(k.q, q);
-        k.tri = tri;
-        ++n;
+  for (int r = r0; r < r1; ++r) {
+    for (int col = c0; col < c1; ++col) {
+      for (int up = 0; up < 2; ++up) {
+        Tri& t = tri[n++];
+        mjtNum a[3], b[3], c[3], face[3], pq[3];
+        t.id = 2 * (r * f.ncol + col) + up;
+        f.Corners(t.id, a, b, c);
+        bool inside = Closest(p, a, b, c, t.q);
+        FaceNormal(a, b, c, face);
+        Sub(pq, p, t.q);
+        t.dist = mju_norm3(pq);
+        // a point reached from behind its face is never a contact (a closer one is)
+        t.candidate = t.dist - radius < margin && Dot(pq, face) > 0;
+        if (!t.candidate) continue;
+        if (inside || t.dist < mjMINVAL) mju_copy3(t.normal, face);
+        else mju_scl3(t.normal, pq, 1 / t.dist);
       }
     }
   }
 
-  // keep the local minima, deepest first, each point once
-  std::sort(cand, cand + n, [](const Candidate& x, const Candidate& y) {
-    return x.dist < y.dist || (x.dist == y.dist && x.tri < y.tri);
-  });
-  int kept[kMaxContacts];
-  int nkept = 0;
-  for (int i = 0; i < n && nkept < kMaxContacts; ++i) {
+  // the local minima, deepest first, each point once
+  int order[kMaxContacts + 1];
+  int found = 0;
+  for (;;) {
+    int best = -1;
+    for (int i = 0; i < n; ++i) {
+      if (!tri[i].candidate) continue;
+      if (best < 0 || tri[i].dist < tri[best].dist ||
+          (tri[i].dist == tri[best].dist && tri[i].id < tri[best].id)) {
+        best = i;
+      }
+    }
+    if (best < 0 || found == kMaxContacts) break;
+    Tri& t = tri[best];
+    t.candidate = false;
     bool keep = true;
-    for (int j = 0; j < i && keep; ++j) {
-      mjtNum a[3], b[3], cc[3], gap[3];
-      Sub(gap, cand[i].q, cand[j].q);
-      bool same = Dot(gap, gap) < kSame * kSame;
-      if (cand[j].dist < cand[i].dist - kSame) {
-        corners(cand[j].tri, a, b, cc);
-        keep = !Holds(cand[i].q, a, b, cc);  // a closer point on a triangle holding q
-      } else if (same) {
-        keep = false;  // the same point, from a neighbour
-      }
+    for (int j = 0; j < n && keep; ++j) {  // a strictly closer point on a triangle holding q
+      if (j == best || !(tri[j].dist < t.dist - kSame)) continue;
+      mjtNum a[3], b[3], c[3];
+      f.Corners(tri[j].id, a, b, c);
+      keep = !Holds(t.q, a, b, c);
     }
-    if (keep) kept[nkept++] = i;
+    for (int k = 0; k < found && keep; ++k) {  // the same point, from a neighbour
+      mjtNum gap[3];
+      Sub(gap, t.q, tri[order[k]].q);
+      keep = Dot(gap, gap) >= kSame * kSame;
+    }
+    if (keep) order[found++] = best;
   }
-
-  for (int k = 0; k < nkept; ++k) {
-    const Candidate& c = cand[kept[k]];
-    mjtNum mid[3];
-    for (int i = 0; i < 3; ++i) mid[i] = c.q[i] + c.normal[i] * (c.dist / 2);
-    mju_mulMatVec3(con[k].normal, mat1, c.normal);
-    mju_mulMatVec3(con[k].pos, mat1, mid);
-    mju_addTo3(con[k].pos, pos1);
-    con[k].dist = c.dist;
-    mju_zero3(con[k].tangent);
+  for (int k = 0; k < found; ++k) {
+    const Tri& t = tri[order[k]];
+    Emit(con + k, pos1, mat1, t.q, t.normal, t.dist - radius);
   }
-  return nkept;
+  return found;
 }
 
 }  // namespace
@@ -216,7 +272,7 @@ extern "C" {
 // own is kept for every model without the numeric). Returns the numeric's name.
 const char* jaxenvs_install_hfield_surface() {
   std::call_once(installed, [] {
-    stock = mjCOLLISIONFUNC[mjGEOM_HFIELD][mjGEOM_SPHERE];
+    stock.store(mjCOLLISIONFUNC[mjGEOM_HFIELD][mjGEOM_SPHERE], std::memory_order_release);
     mjCOLLISIONFUNC[mjGEOM_HFIELD][mjGEOM_SPHERE] = SurfaceSphere;
   });
   return kSurfaceNumeric;
