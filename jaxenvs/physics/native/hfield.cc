@@ -205,20 +205,24 @@ int SurfaceSphere(const mjModel* m, mjData* d, mjPreContact* con, int g1, int g2
   std::vector<Tri> heap;  // a sphere over more than kOnStack triangles (not a foot)
   if (count > kOnStack) heap.resize(count);
   Tri* tri = count > kOnStack ? heap.data() : local;
+  // a triangle out of reach is neither a contact nor closer than one: not kept
   int n = 0;
   for (int r = r0; r < r1; ++r) {
     for (int col = c0; col < c1; ++col) {
       for (int up = 0; up < 2; ++up) {
-        Tri& t = tri[n++];
+        Tri& t = tri[n];
         mjtNum a[3], b[3], c[3], face[3], pq[3];
         t.id = 2 * (r * f.ncol + col) + up;
         f.Corners(t.id, a, b, c);
+        if (std::max({a[2], b[2], c[2]}) <= p[2] - reach) continue;
         bool inside = Closest(p, a, b, c, t.q);
-        FaceNormal(a, b, c, face);
         Sub(pq, p, t.q);
         t.dist = mju_norm3(pq);
+        if (t.dist >= reach) continue;
+        ++n;
         // a point reached from behind its face is never a contact (a closer one is)
-        t.candidate = t.dist - radius < margin && Dot(pq, face) > 0;
+        FaceNormal(a, b, c, face);
+        t.candidate = Dot(pq, face) > 0;
         if (!t.candidate) continue;
         if (inside || t.dist < mjMINVAL) mju_copy3(t.normal, face);
         else mju_scl3(t.normal, pq, 1 / t.dist);
