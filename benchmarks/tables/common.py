@@ -29,6 +29,9 @@ class Table(NamedTuple):
 
 # --- formatting ---------------------------------------------------------------------------
 
+#: MuJoCo C's heightfield colliders (a terrain config's ``hfield_contact``), as tables name them
+HFIELD_COLLIDERS = {"surface": "jaxenvs' surface", "mujoco": "MuJoCo's prisms"}
+
 
 def rate(x: float) -> str:
     """Steps/s as the tables print them: 1.23M, 557k, 22.1k, 5,553."""

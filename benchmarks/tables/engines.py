@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from .common import (
+    HFIELD_COLLIDERS,
     Cells,
     Rec,
     Row,
@@ -173,7 +174,12 @@ def terrain_throughput(recs: list[Rec]) -> Cells:
     def cells(r: Row) -> list[str]:
         flat = r["variant"] == "flat"
         solver = "-" if flat else r.get("solver", "auto (the config's)")
-        collider = "-" if flat or r["physics"] != "c" else r.get("hfield_contact", "surface")
+        # a row without the field ran the task's default collider
+        collider = (
+            "-"
+            if flat or r["physics"] != "c"
+            else HFIELD_COLLIDERS[r.get("hfield_contact", "surface")]
+        )
         return [
             r["task"],
             solver,

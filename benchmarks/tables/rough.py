@@ -4,7 +4,7 @@ HexapodWalkRough-v0 per seed, its level, speed, targets and falls (no targets se
 
 from __future__ import annotations
 
-from .common import Cells, Rec, Row, Table, each_row, met, pct
+from .common import HFIELD_COLLIDERS, Cells, Rec, Row, Table, each_row, met, pct
 
 #: (row field, label) of each engine group a row may hold
 BENCHES = (
@@ -180,9 +180,7 @@ def flat_ground(recs: list[Rec]) -> Cells:
         """MuJoCo C's heightfield collider (rows before the choice existed: MuJoCo's)."""
         if r["physics"] != "c" or r["ground"] == "plane":
             return "-"
-        return {"surface": "jaxenvs' surface", "mujoco": "MuJoCo's prisms"}[
-            r.get("hfield_contact", "mujoco")
-        ]
+        return HFIELD_COLLIDERS[r.get("hfield_contact", "mujoco")]
 
     def cells(r: Row) -> list[str]:
         if walker:

@@ -48,24 +48,31 @@ def _version(name: str) -> str | None:
         return None
 
 
+def _open() -> ctypes.CDLL | str:
+    """The built library, loaded, or why not (one line that names the fix)."""
+    path = _built_file()
+    if path is None:
+        return f"the native engine was not built at install (no C++ compiler?): {_FIX}"
+    import mujoco  # noqa: F401  (its bindings load libmujoco, which ours links by soname)
+
+    try:
+        return ctypes.CDLL(str(path))
+    except OSError as err:
+        return f"the native engine at {path.name} does not load ({err}): {_FIX}"
+
+
 @functools.lru_cache(maxsize=1)
 def library() -> ctypes.CDLL | None:
     """The loaded native engine with its FFI target registered, or ``None``."""
     if os.environ.get(ENV_VAR, "1").strip().lower() in ("0", "false", "no", "off"):
         _reason.append(f"{ENV_VAR}=0 turns the native engine off")
         return None
-    path = _built_file()
-    if path is None:
-        _reason.append(f"the native engine was not built at install (no C++ compiler?): {_FIX}")
-        return None
     import jax
     import mujoco
 
-    try:
-        # mujoco's bindings loaded libmujoco already; ours links to it by its soname
-        lib = ctypes.CDLL(str(path))
-    except OSError as err:
-        _reason.append(f"the native engine at {path.name} does not load ({err}): {_FIX}")
+    lib = _open()
+    if isinstance(lib, str):
+        _reason.append(lib)
         return None
     lib.jaxenvs_register_model.argtypes = [
         ctypes.c_char_p,
@@ -111,16 +118,10 @@ def hfield_surface() -> str | None:
     process, native or through the Python callback (``JAXENVS_NATIVE`` does not turn it
     off); a model without the numeric keeps MuJoCo's own collider.
     """
-    path = _built_file()
-    if path is None:
-        return None
     import mujoco
 
-    try:
-        lib = ctypes.CDLL(str(path))
-    except OSError:
-        return None
-    if lib.jaxenvs_mujoco_header_version() != mujoco.mj_version():
+    lib = _open()
+    if isinstance(lib, str) or lib.jaxenvs_mujoco_header_version() != mujoco.mj_version():
         return None
     try:
         install = lib.jaxenvs_install_hfield_surface

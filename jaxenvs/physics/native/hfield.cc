@@ -47,11 +47,11 @@ std::atomic<mjfCollision> stock{nullptr};
 std::once_flag installed;
 
 struct Tri {
-  mjtNum dist;       // |p - q| (or, below the surface, the signed face distance)
+  mjtNum dist;       // |p - q|
   mjtNum q[3];       // the triangle's point closest to p, hfield frame
   mjtNum normal[3];  // hfield frame, from the surface to the sphere
   int id;            // 2 * (r * ncol + c) + (0 lower, 1 upper)
-  bool candidate;    // in reach and facing p
+  bool candidate;    // p in front of its face (a contact unless a closer point blocks it)
 };
 
 inline void Sub(mjtNum* out, const mjtNum* a, const mjtNum* b) {
