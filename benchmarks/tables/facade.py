@@ -33,4 +33,5 @@ TABLES = {
     "facade-native": Table(("facade_cpu2_native",), facade),
     "facade-single-idle": Table(("facade_cpu2_single_idle",), facade),
     "facade-single-struct": Table(("facade_cpu2_single_struct",), facade),
+    "facade-single-fast": Table(("facade_cpu2_single_fast",), facade),
 }
