@@ -228,7 +228,7 @@ class Words:
         """One env's ``(obs, reward, terminated, truncated, info)`` read from its buffers
         (Python scalars, a fresh numpy obs)."""
         words = np.asarray(bufs[0]) if self.num_reported == 1 else self._host_words(bufs)
-        values = self._scalar_words.unpack_from(words, self._scalar_offset)
+        values = self._scalar_words.unpack_from(words.data, self._scalar_offset)
         # one value per key: the struct has a code per info key after the three flags
         info = dict(zip(self._info_keys, values[3:], strict=False))
         for key in self._bool_keys:
