@@ -374,4 +374,6 @@ TABLES = {
     "joystick-seeds-elliptic": Table(("ppo_joystick_seeds_h200",), joystick_seeds),
     "joystick-seeds": Table(("ppo_joystick_seeds_nocritic_h200",), joystick_seeds),
     "joystick-seeds-gap": Table(("ppo_joystick_seeds_gap_h100",), joystick_seeds),
+    "joystick-seeds-gpus2": Table(("ppo_joystick_seeds_gpus2_h200",), joystick_seeds),
+    "joystick-seeds-gpus1": Table(("ppo_joystick_seeds_gpus1_h200",), joystick_seeds),
 }
