@@ -15,7 +15,7 @@ train() { # name gpus seed config cores
   tail -2 $OUT/log_$1.txt
 }
 evalrun() { # name gpu cores
-  python3 benchmarks/seeds.py slim runs/$1 >> $OUT/log_$1.txt 2>&1
+  JAX_PLATFORMS=cpu python3 benchmarks/seeds.py slim runs/$1 >> $OUT/log_$1.txt 2>&1  # not on a GPU the other runs hold
   (CUDA_VISIBLE_DEVICES=$2 taskset -c $3 timeout 140 python3 benchmarks/seeds.py eval runs/$1 >> $OUT/log_$1.txt 2>&1 || echo "$1 mjx eval failed") &
   (JAX_PLATFORMS=cpu taskset -c $3 timeout 150 python3 benchmarks/seeds.py eval runs/$1 --physics c >> $OUT/log_$1.txt 2>&1 || echo "$1 c eval failed") &
   wait
