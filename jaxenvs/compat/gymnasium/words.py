@@ -227,13 +227,13 @@ class Words:
     def report(self, bufs: Bufs) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """One env's ``(obs, reward, terminated, truncated, info)`` read from its buffers
         (Python scalars, a fresh numpy obs)."""
-        words = np.asarray(bufs[0]) if self.num_reported == 1 else self._host_words(bufs)
+        words = self._host_words(bufs)
         values = self._scalar_words.unpack_from(words.data, self._scalar_offset)
-        # one value per key: the struct has a code per info key after the three flags
-        info = dict(zip(self._info_keys, values[3:], strict=False))
+        info = dict(zip(self._info_keys, values[3:], strict=True))
         for key in self._bool_keys:
             info[key] = info[key] != 0.0
-        return words[self.obs].copy(), values[0], values[1] != 0.0, values[2] != 0.0, info
+        obs = words[self.obs].copy()
+        return obs, values[0], values[1] != 0.0, values[2] != 0.0, info
 
     def report_batch(self, bufs: Bufs) -> dict[str, np.ndarray]:
         """A batch's reported leaves as fresh numpy arrays: ``obs`` (and ``final_obs``)
