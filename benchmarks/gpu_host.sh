@@ -17,7 +17,7 @@ train_eval() { # name gpu cores task [jaxenvs train args...]: cold, cut at $TRAI
   CUDA_VISIBLE_DEVICES=$gpu XDG_CACHE_HOME=/tmp/cache_$name taskset -c $cores timeout -s TERM ${TRAIN_TIMEOUT:-430} \
     python3 -m jaxenvs train $task --algo ppo "$@" --no-video --no-compile-cache --quiet --out runs/$name > $OUT/log_$name.txt 2>&1
   echo "$name whole $(python3 -c "import time; print(round(time.time() - $s, 1))") s" | tee -a $OUT/log_$name.txt
-  python3 benchmarks/seeds.py slim runs/$name >> $OUT/log_$name.txt 2>&1
+  JAX_PLATFORMS=cpu python3 benchmarks/seeds.py slim runs/$name >> $OUT/log_$name.txt 2>&1  # on no GPU: the other runs hold them
   (CUDA_VISIBLE_DEVICES=$gpu taskset -c $cores timeout 140 python3 benchmarks/seeds.py eval runs/$name >> $OUT/log_$name.txt 2>&1 || echo "$name mjx eval failed") &
   (JAX_PLATFORMS=cpu taskset -c $cores timeout 150 python3 benchmarks/seeds.py eval runs/$name --physics c >> $OUT/log_$name.txt 2>&1 || echo "$name c eval failed") &
   wait
