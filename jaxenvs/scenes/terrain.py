@@ -32,7 +32,11 @@ the torso's underside at 0.171 m: :data:`REACHABLE_STEP`, the tallest riser the 
 pass over, is the hardest step the legs can physically reach. The defaults keep every level
 below it: steps 0.01 to 0.08 m (0.08 is 0.7 of the standing torso's 0.11 m clearance),
 obstacles to 0.06 m, slopes to 0.4 (22 degrees), roughness to +-2 cm, stones from 40 down
-to 12 cm with 2 to 6 cm gaps; 3 m tiles sampled every 2.5 cm, about a foot's diameter.
+to 12 cm with 2 to 6 cm gaps over a pit as deep as the level's stair riser (1 to 8 cm); 3 m
+tiles sampled every 2.5 cm, about a foot's diameter. A foot that misses a stone steps down
+no farther than on the level's stairs: on the triangulated heightfield a gap is a V-shaped
+trench at least two samples (5 cm) wide at its rim, and in a pit deeper than the leg
+reaches down from the stance the foot wedges (benchmarks/NOTES.md).
 
 A user's own ground: :meth:`Terrain.from_array` or :meth:`Terrain.from_image`.
 :meth:`Terrain.mjcf` and :meth:`Terrain.add_to` give MuJoCo the heightfield;
@@ -74,7 +78,15 @@ REACHABLE_STEP = 0.171
 FRICTION = (1.0, 0.005, 0.0001)
 
 Pair = tuple[float, float]
-_LEVELLED = ("slope", "roughness", "step_height", "obstacle_height", "stone_size", "stone_gap")
+_LEVELLED = (
+    "slope",
+    "roughness",
+    "step_height",
+    "obstacle_height",
+    "stone_size",
+    "stone_gap",
+    "pit_depth",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,7 +115,7 @@ class TerrainConfig:
       obstacle_count: obstacles per tile.
       stone_size: (easiest, hardest) side of a stepping stone.
       stone_gap: (easiest, hardest) gap between stepping stones.
-      pit_depth: depth of the pit under the stepping stones.
+      pit_depth: (easiest, hardest) depth of the pit under the stepping stones.
       seed: the seed of every random draw (each tile draws from ``(seed, level, column)``).
     """
 
@@ -125,7 +137,7 @@ class TerrainConfig:
     obstacle_count: int = 80
     stone_size: Pair = (0.4, 0.12)
     stone_gap: Pair = (0.02, 0.06)
-    pit_depth: float = 0.2
+    pit_depth: Pair = (0.01, 0.08)
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -141,7 +153,7 @@ class TerrainConfig:
             _check(whole, name, "must be a whole number of `spacing`")
         _check(self.tile_size > 0, "tile_size", "must be > 0")
         _check(self.platform < self.tile_size, "platform", "must be smaller than tile_size")
-        for name in ("base", "rough_cell", "step_width", "pit_depth"):
+        for name in ("base", "rough_cell", "step_width"):
             _check(getattr(self, name) > 0, name, "must be > 0")
         _check(self.spawn_radius >= 0, "spawn_radius", "must be >= 0")
         _check(self.obstacle_count >= 0, "obstacle_count", "must be >= 0")
@@ -149,6 +161,7 @@ class TerrainConfig:
             pair = getattr(self, name)
             _check(len(pair) == 2 and min(pair) >= 0, name, "must be a pair of values >= 0")
         _check(min(self.stone_size) > 0, "stone_size", "must be > 0")
+        _check(min(self.pit_depth) > 0, "pit_depth", "must be > 0")
         _check(0 < self.obstacle_size[0] <= self.obstacle_size[1], "obstacle_size", "0 < lo <= hi")
 
     def difficulty(self, level: int) -> float:
@@ -499,11 +512,12 @@ def _obstacles(t: _Tile) -> np.ndarray:
 
 def _stones(t: _Tile) -> np.ndarray:
     size, gap = t.c.at("stone_size", t.level), t.c.at("stone_gap", t.level)
+    depth = t.c.at("pit_depth", t.level)
     pitch, half = size + gap, t.c.tile_size / 2
     rows = np.floor((t.v + half) / pitch).astype(int)  # each sample's row of stones
     shift = t.rng.uniform(0.0, pitch, rows.max() + 1)[rows]
     stone = (np.mod(t.u + half + shift, pitch) < size) & (np.mod(t.v + half, pitch) < size)
-    return np.where(stone | t.platform, 0.0, -t.c.pit_depth)
+    return np.where(stone | t.platform, 0.0, -depth)
 
 
 _TILES: dict[str, Callable[[_Tile], np.ndarray]] = {

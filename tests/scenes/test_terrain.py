@@ -107,6 +107,9 @@ def test_harder_levels_are_harder(small: Terrain) -> None:
         assert measures["obstacles"][level] == pytest.approx(
             c.at("obstacle_height", level), abs=1e-6
         )
+        # the stones' pit: as deep as the level says, every gap down to it
+        stones = per_level["stepping_stones"][level]
+        assert -stones.min() == pytest.approx(c.at("pit_depth", level), abs=1e-6)
     # stairs up climb away from the platform, stairs down descend from it
     assert tile(small, 3, col["stairs_up"]).min() < 0 <= tile(small, 3, col["stairs_up"]).max()
     assert tile(small, 3, col["stairs_down"]).max() > 0
