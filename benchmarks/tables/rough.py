@@ -216,10 +216,18 @@ TABLES = {
     "hfield-normals": Table(("hfield_normals_cpu2",), hfield_normals),
     "walker-rough-training": Table(("ppo_walker_rough_seeds_h200",), walker_rough_training),
     "walker-rough-walking": Table(("ppo_walker_rough_seeds_h200",), walker_rough_walking),
+    "walker-rough-training-pit20": Table(
+        ("ppo_walker_rough_seeds_pit20_h200",), walker_rough_training
+    ),
+    "walker-rough-walking-pit20": Table(
+        ("ppo_walker_rough_seeds_pit20_h200",), walker_rough_walking
+    ),
     "rough-training-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_training),
     "rough-tracking-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_tracking),
     "rough-training": Table(("ppo_joystick_rough_seeds_h200",), rough_training),
     "rough-tracking": Table(("ppo_joystick_rough_seeds_h200",), rough_tracking),
+    "rough-training-pit20": Table(("ppo_joystick_rough_seeds_pit20_h200",), rough_training),
+    "rough-tracking-pit20": Table(("ppo_joystick_rough_seeds_pit20_h200",), rough_tracking),
     "rough-training-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_training),
     "rough-tracking-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_tracking),
     "rough-training-h100": Table(("ppo_joystick_rough_seed0_cut_h100",), rough_training),
