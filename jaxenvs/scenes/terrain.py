@@ -33,10 +33,8 @@ pass over, is the hardest step the legs can physically reach. The defaults keep 
 below it: steps 0.01 to 0.08 m (0.08 is 0.7 of the standing torso's 0.11 m clearance),
 obstacles to 0.06 m, slopes to 0.4 (22 degrees), roughness to +-2 cm, stones from 40 down
 to 12 cm with 2 to 6 cm gaps over a pit as deep as the level's stair riser (1 to 8 cm); 3 m
-tiles sampled every 2.5 cm, about a foot's diameter. A foot that misses a stone steps down
-no farther than on the level's stairs: on the triangulated heightfield a gap is a V-shaped
-trench at least two samples (5 cm) wide at its rim, and in a pit deeper than the leg
-reaches down from the stance the foot wedges (benchmarks/NOTES.md).
+tiles sampled every 2.5 cm, about a foot's diameter (docs/terrain.md says why the pit is
+no deeper than the stairs' riser).
 
 A user's own ground: :meth:`Terrain.from_array` or :meth:`Terrain.from_image`.
 :meth:`Terrain.mjcf` and :meth:`Terrain.add_to` give MuJoCo the heightfield;
@@ -159,7 +157,8 @@ class TerrainConfig:
         _check(self.obstacle_count >= 0, "obstacle_count", "must be >= 0")
         for name in (*_LEVELLED, "obstacle_size"):
             pair = getattr(self, name)
-            _check(len(pair) == 2 and min(pair) >= 0, name, "must be a pair of values >= 0")
+            is_pair = isinstance(pair, tuple | list) and len(pair) == 2
+            _check(is_pair and min(pair) >= 0, name, "must be an (easiest, hardest) pair >= 0")
         _check(min(self.stone_size) > 0, "stone_size", "must be > 0")
         _check(min(self.pit_depth) > 0, "pit_depth", "must be > 0")
         _check(0 < self.obstacle_size[0] <= self.obstacle_size[1], "obstacle_size", "0 < lo <= hi")

@@ -109,7 +109,9 @@ def test_harder_levels_are_harder(small: Terrain) -> None:
         )
         # the stones' pit: as deep as the level says, every gap down to it
         stones = per_level["stepping_stones"][level]
-        assert -stones.min() == pytest.approx(c.at("pit_depth", level), abs=1e-6)
+        depth = c.at("pit_depth", level)
+        assert np.all((np.abs(stones) < 1e-6) | (np.abs(stones + depth) < 1e-6)), level
+        assert -stones.min() == pytest.approx(depth, abs=1e-6)
     # stairs up climb away from the platform, stairs down descend from it
     assert tile(small, 3, col["stairs_up"]).min() < 0 <= tile(small, 3, col["stairs_up"]).max()
     assert tile(small, 3, col["stairs_down"]).max() > 0
@@ -219,6 +221,8 @@ def test_from_image_round_trip(tmp_path) -> None:  # type: ignore[no-untyped-def
         ({"levels": 0}, "levels"),
         ({"platform": 3.0}, "platform"),
         ({"step_height": (0.01,)}, "step_height"),
+        ({"pit_depth": 0.2}, "pit_depth"),
+        ({"pit_depth": (0.0, 0.08)}, "pit_depth"),
     ],
 )
 def test_bad_config_is_one_clear_error(kwargs: dict, message: str) -> None:
