@@ -205,7 +205,28 @@ def flat_ground(recs: list[Rec]) -> Cells:
     return each_row(head, rows, cells)
 
 
+def stones_falls(recs: list[Rec]) -> Cells:
+    """Falls on stepping-stone tiles per run, pit and level (benchmarks/stones_falls.py)."""
+    (rec,) = recs
+
+    def cells(r: Row) -> list[str]:
+        pit = "levelled" if r["pit"] == "levelled" else f"{float(r['pit']):.2f} m"
+        return [
+            f"{r['run']} (seed {r['seed']})",
+            pit,
+            str(r["level"]),
+            f"{100 * r['pit_depth']:.1f} cm",
+            f"{100 * r['stone_size']:.1f} / {100 * r['stone_gap']:.1f} cm",
+            str(r["envs"]),
+            pct(r["fell_fraction"]),
+        ]
+
+    head = ["policy", "pit", "level", "pit depth", "stone / gap", "envs", "fell in 20 s"]
+    return each_row(head, rec["rows"], cells)
+
+
 TABLES = {
+    "stones-falls": Table(("stones_falls_cpu2",), stones_falls),
     "walker-ground": Table(
         ("walker_ground_cpu2", "walker_ground_cpu2_surface", "walker_ground_cpu2_mjx"), flat_ground
     ),
