@@ -40,7 +40,8 @@ and for ``mjx``, ``mjx_randomized``, ``mujoco_c``, ``mujoco_c_randomized`` and (
 that eval exists) ``mujoco_c_prisms`` a dict with ``mid`` and ``top``, each holding the
 task's figures (``fell_fraction`` and the tracking errors, or the walker's ``speed`` and
 ``targets_per_minute``) and
-``mid_fell_by_type`` (each terrain type's ``fell_fraction`` at the middle level). The runs
+``mid_fell_by_type`` (each terrain type's ``fell_fraction`` at the middle level), and
+``mid_by_type`` and ``top_by_type`` (each type's figures at that level). The runs
 of one table are of one task.
 """
 
@@ -279,6 +280,11 @@ def row(run_dir: str) -> dict[str, Any]:
             out[field]["mid_fell_by_type"] = {
                 t: round(f["fell_fraction"], 4) for t, f in groups["mid"]["types"].items()
             }
+            for level in ("mid", "top"):
+                out[field][f"{level}_by_type"] = {
+                    t: {k: round(f[k], 4) for k in FIGURES[config.env_id]}
+                    for t, f in groups[level]["types"].items()
+                }
     return out
 
 
