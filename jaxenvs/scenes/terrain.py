@@ -47,7 +47,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import mujoco
 import numpy as np
@@ -156,9 +156,10 @@ class TerrainConfig:
         _check(self.spawn_radius >= 0, "spawn_radius", "must be >= 0")
         _check(self.obstacle_count >= 0, "obstacle_count", "must be >= 0")
         for name in (*_LEVELLED, "obstacle_size"):
-            pair = getattr(self, name)
-            is_pair = isinstance(pair, tuple | list) and len(pair) == 2
-            _check(is_pair and min(pair) >= 0, name, "must be an (easiest, hardest) pair >= 0")
+            lo, hi = _pair(getattr(self, name))
+            _check(lo >= 0 and hi >= 0, name, "must be an (easiest, hardest) pair >= 0")
+            # a list or an array kept as a tuple of floats: the config stays hashable
+            object.__setattr__(self, name, (lo, hi))
         _check(min(self.stone_size) > 0, "stone_size", "must be > 0")
         _check(min(self.pit_depth) > 0, "pit_depth", "must be > 0")
         _check(0 < self.obstacle_size[0] <= self.obstacle_size[1], "obstacle_size", "0 < lo <= hi")
@@ -185,6 +186,17 @@ class TerrainConfigError(ValueError):
     def __init__(self, field: str, message: str) -> None:
         super().__init__(f"TerrainConfig.{field}: {message}")
         self.field = field
+
+
+def _pair(value: Any) -> tuple[float, float]:
+    """``value`` as two floats; NaNs when it is not two numbers."""
+    try:
+        if np.ndim(value) == 1 and np.size(value) == 2:
+            lo, hi = (float(x) for x in value)
+            return lo, hi
+    except (TypeError, ValueError):
+        pass
+    return math.nan, math.nan
 
 
 def _check(ok: bool, name: str, message: str) -> None:

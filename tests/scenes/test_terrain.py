@@ -12,7 +12,14 @@ import pytest
 
 from jaxenvs.robots.hexapod import COXA, FEMUR, LEG_RANGE, LEGS, TIP, Hexapod
 from jaxenvs.scenes import Scene
-from jaxenvs.scenes.terrain import REACHABLE_STEP, TYPES, Terrain, TerrainConfig, generate
+from jaxenvs.scenes.terrain import (
+    REACHABLE_STEP,
+    TYPES,
+    Terrain,
+    TerrainConfig,
+    TerrainConfigError,
+    generate,
+)
 
 SMALL = TerrainConfig(levels=4, tile_size=1.5, platform=0.5, border=0.25, obstacle_count=20)
 
@@ -228,6 +235,14 @@ def test_from_image_round_trip(tmp_path) -> None:  # type: ignore[no-untyped-def
 def test_bad_config_is_one_clear_error(kwargs: dict, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         TerrainConfig(**kwargs)
+
+
+def test_a_pair_given_as_a_list_or_an_array_is_kept_as_a_tuple() -> None:
+    given = TerrainConfig(slope=[0.0, 0.3], pit_depth=np.array([0.02, 0.1]))
+    assert given == TerrainConfig(slope=(0.0, 0.3), pit_depth=(0.02, 0.1))
+    assert hash(given) == hash(TerrainConfig(slope=(0.0, 0.3), pit_depth=(0.02, 0.1)))
+    with pytest.raises(TerrainConfigError, match="pit_depth"):
+        TerrainConfig(pit_depth=("a", "b"))
 
 
 def test_bad_user_terrain_is_one_clear_error() -> None:
