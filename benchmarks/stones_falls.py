@@ -13,7 +13,7 @@ deep as the level's stair riser) and depths in metres (the same depth at every l
 
 One row per run, pit and level: ``run``, ``seed``, ``pit`` (``levelled`` or the depth),
 ``level``, ``pit_depth`` (m, at that level), ``stone_size``, ``stone_gap`` (m), ``envs``,
-``fell_fraction``.
+``seconds``, ``fell_fraction``.
 """
 
 from __future__ import annotations
@@ -83,6 +83,7 @@ def measure(run_dir: str, args: argparse.Namespace) -> list[dict[str, Any]]:
                     "stone_size": round(terrain.at("stone_size", level), 4),
                     "stone_gap": round(terrain.at("stone_gap", level), 4),
                     "envs": args.envs,
+                    "seconds": args.seconds,
                     "fell_fraction": falls(pitted, act, level, args.envs, steps, args.seed),
                 }
             )

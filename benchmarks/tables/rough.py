@@ -217,11 +217,11 @@ def stones_falls(recs: list[Rec]) -> Cells:
             str(r["level"]),
             f"{100 * r['pit_depth']:.1f} cm",
             f"{100 * r['stone_size']:.1f} / {100 * r['stone_gap']:.1f} cm",
-            str(r["envs"]),
+            f"{r['envs']} x {r['seconds']:.0f} s",
             pct(r["fell_fraction"]),
         ]
 
-    head = ["policy", "pit", "level", "pit depth", "stone / gap", "envs", "fell in 20 s"]
+    head = ["policy", "pit", "level", "pit depth", "stone / gap", "envs x episode", "fell"]
     return each_row(head, rec["rows"], cells)
 
 
