@@ -231,6 +231,7 @@ def _run_chunk(run: _Run, clock: _Clock, rs: RunState) -> tuple[RunState, Any, f
     train_cfg, num_chunks = run.resolved.train, run.trainer.num_chunks
     last = time.perf_counter()
     state, metrics = run.programs.chunk_fn(rs.state)
+    run.programs.start_evaluator()  # the chunk has compiled (jaxenvs.run.programs)
     metrics = jax.device_get(metrics)
     seconds = time.perf_counter() - last
     level = task_level(state) if LEVEL in run.columns else None

@@ -1,9 +1,10 @@
 """The compiled programs of a run: init, chunk and evaluator, built once per config.
 
-:func:`build_programs` turns a resolved config into the jitted ``vmap``-over-seeds init
-and chunk (split over a device mesh when there is more than one device) and the greedy
-evaluator, compiled on a background thread. It is cached per config; across processes,
-JAX's persistent compile cache (:mod:`jaxenvs.run.compile_cache`) skips the compiles.
+:func:`build_programs` turns a resolved config into the jitted init and chunk over seeds
+(split over a device mesh when there is more than one device) and the greedy evaluator,
+compiled on a background thread once the first chunk has compiled. It is cached per config;
+across processes, JAX's persistent compile cache (:mod:`jaxenvs.run.compile_cache`) skips
+the compiles.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import functools
+import threading
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -28,34 +31,58 @@ PyTree = Any
 _COMPILER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxenvs-compile")
 
 
+class _Background:
+    """``compile()`` run once on the background compile thread, when first asked for."""
+
+    def __init__(self, compile: Callable[[], Any]) -> None:
+        self._compile = compile
+        self._lock = threading.Lock()
+        self._future: concurrent.futures.Future | None = None
+
+    def start(self) -> concurrent.futures.Future:
+        """The compile's future, submitting it on the first call."""
+        with self._lock:
+            if self._future is None:
+                self._future = _COMPILER.submit(self._compile)
+            return self._future
+
+
 @dataclasses.dataclass(frozen=True)
 class Programs:
-    """A run's env and trainer with its jitted init and chunk (``vmap``-ed over seeds)
-    and the evaluator being compiled (``eval_future``)."""
+    """A run's env and trainer with its jitted init and chunk (over seeds) and its
+    evaluator, compiled on the background thread from :meth:`start_evaluator` on."""
 
     env: Env
     trainer: Trainer
     init_fn: Any
     chunk_fn: Any
-    eval_future: concurrent.futures.Future
+    evaluator: _Background
+
+    def start_evaluator(self) -> None:
+        """Start the evaluator's compile on the background thread (once; the run loop
+        calls it when the first chunk's call has returned, i.e. has compiled, so that the
+        two programs' tracing and compiling do not share the machine)."""
+        self.evaluator.start()
 
     def evaluate(self, params: PyTree, key: jax.Array) -> Any:
-        """The evaluator's ``(returns, trajectory, length)`` of every seed (waits for
-        its compile)."""
-        return self.eval_future.result()(params, key)
+        """The evaluator's ``(returns, trajectory, length)`` of every seed (starts its
+        compile if nothing has, and waits for it)."""
+        return self.evaluator.start().result()(params, key)
 
 
 @functools.lru_cache(maxsize=4)
 def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Programs:
-    """Env, trainer, the jitted ``vmap``s of init and chunk, and the evaluator.
+    """Env, trainer, the jitted init and chunk over seeds (:func:`over_seeds`), and the
+    evaluator.
 
-    The evaluator is compiled ahead of time on a background thread while the caller
-    compiles and runs the training chunks (XLA compiles one program per core, so on a
-    small machine this hides most of the evaluator's compile). Cached per config, so a
-    resume or a second run in the same process reuses the compiled programs. Over more
-    than one device (``devices``; ``None``: :func:`jaxenvs.run.placement.run_mesh`),
-    init and chunk split the env batch over a mesh of them
-    (:func:`jaxenvs.run.placement.mesh_programs`).
+    The evaluator is compiled on a background thread from :meth:`Programs.start_evaluator`
+    on, which the run loop calls once the first chunk has compiled: its compile then
+    overlaps the training chunks' run rather than the first chunk's tracing and compile
+    (on one H200 that contention added 7-11 s to the walker's first chunk). Cached per
+    config, so a resume or a second run in the same process reuses the compiled programs.
+    Over more than one device (``devices``; ``None``:
+    :func:`jaxenvs.run.placement.run_mesh`), init and chunk split the env batch over a mesh
+    of them (:func:`jaxenvs.run.placement.mesh_programs`).
     """
     env, trainer = build(resolved)
     mesh = run_mesh(
@@ -65,12 +92,31 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     chunk_fn: Any
     if mesh.size > 1:  # laid out over the mesh, the evaluator too (jaxenvs.run.placement)
         trainer, init_fn, chunk_fn, compile_evaluate = mesh_programs(resolved, env, trainer, mesh)
-        return Programs(env, trainer, init_fn, chunk_fn, _COMPILER.submit(compile_evaluate))
-    init_fn, chunk_fn = jit(jax.vmap(trainer.init)), jit(jax.vmap(trainer.chunk))
+        return Programs(env, trainer, init_fn, chunk_fn, _Background(compile_evaluate))
+    seeds = resolved.train.num_seeds
+    init_fn, chunk_fn = jit(over_seeds(trainer.init, seeds)), jit(over_seeds(trainer.chunk, seeds))
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
     keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
     key_shape = jax.eval_shape(lambda: eval_key(0))
     evaluate = jit(jax.vmap(evaluator, in_axes=(0, None)))
     params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), init_fn.eval_shape(keys))
-    future = _COMPILER.submit(lambda: evaluate.lower(params_shape, key_shape).compile())
-    return Programs(env, trainer, init_fn, chunk_fn, future)
+    later = _Background(lambda: evaluate.lower(params_shape, key_shape).compile())
+    return Programs(env, trainer, init_fn, chunk_fn, later)
+
+
+def over_seeds(fun: Callable[..., Any], num_seeds: int) -> Callable[..., Any]:
+    """``fun`` over a leading seed axis of its arguments and results: ``jax.vmap(fun)``
+    for several seeds; for one, ``fun`` itself between dropping that axis and restoring
+    it. The single seed's program is then traced without batching its loops, whose
+    batching rule traces each loop body again (the walker's chunk: 2.8 s of tracing
+    rather than 4.8 s on two cores). It is the same computation, but XLA compiles it into
+    another program, so a seed trained alone does not match that seed of a batch of seeds
+    bit for bit."""
+    if num_seeds > 1:
+        return jax.vmap(fun)
+
+    def one(*args: Any) -> Any:
+        out = fun(*jax.tree.map(lambda x: x[0], args))
+        return jax.tree.map(lambda x: x[None], out)
+
+    return one

@@ -1,0 +1,104 @@
+"""A run's programs: one seed traced without the seed axis, the evaluator compiled only
+once the first chunk has."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import yaml
+from tabular_fakes import fake_envs
+
+from jaxenvs.run import loop, programs, runner
+
+CHAIN_FILE = {
+    "algo": "qlearning",
+    "env": {"id": "Test-Chain-v0", "episode_length": 12},
+    "agent": {
+        "alpha": 0.5,
+        "gamma": 0.9,
+        "number_splits": 7,
+        "obs_low": [0.0],
+        "obs_high": [7.0],
+        "num_envs": 2,
+        "chunk_steps": 30,
+        "total_steps": 2 * 30 * 3,  # 3 chunks
+    },
+    "train": {"num_seeds": 1, "eval_episodes": 2, "video": False},
+}
+
+
+def _loop(carry, x):
+    """A function with a loop over a carry, as a chunk has: the seed axis's batching rule
+    would trace its body again."""
+
+    def body(c, _):
+        return c * 0.5 + x["a"], c.sum()
+
+    out, sums = jax.lax.scan(body, carry, None, length=4)
+    return {"out": out, "sums": sums}
+
+
+@pytest.mark.parametrize("seeds", [1, 3])
+def test_over_seeds_maps_the_leading_axis_as_vmap_does(seeds):
+    carry = jnp.arange(seeds * 2, dtype=jnp.float32).reshape(seeds, 2)
+    x = {"a": jnp.linspace(0.0, 1.0, seeds)}
+    got = jax.jit(programs.over_seeds(_loop, seeds))(carry, x)
+    want = jax.vmap(_loop)(carry, x)
+    assert jax.tree.structure(got) == jax.tree.structure(want)
+    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+        assert g.shape == w.shape  # the seed axis is kept for one seed too
+        np.testing.assert_allclose(g, w, rtol=1e-6)
+
+
+class _Recording(concurrent.futures.ThreadPoolExecutor):
+    """The background compile thread, noting when each job was submitted."""
+
+    def __init__(self, events):
+        super().__init__(1)
+        self.events = events
+
+    def submit(self, fn, /, *args, **kwargs):
+        self.events.append("evaluator compile submitted")
+        return super().submit(fn, *args, **kwargs)
+
+
+@pytest.fixture
+def chain(tmp_path):
+    path = tmp_path / "chain.yaml"
+    path.write_text(yaml.safe_dump(CHAIN_FILE))
+    with fake_envs():
+        yield runner.resolve_config(None, None, path)
+
+
+class _CountedChunk:
+    """A jitted chunk that notes each call."""
+
+    def __init__(self, chunk, events):
+        self.chunk, self.events = chunk, events
+
+    def __call__(self, state):
+        self.events.append("chunk")
+        return self.chunk(state)
+
+    def eval_shape(self, state):
+        return self.chunk.eval_shape(state)
+
+
+def test_evaluator_compiles_once_after_the_first_chunk(chain, tmp_path, monkeypatch):
+    events: list[str] = []
+    monkeypatch.setattr(programs, "_COMPILER", _Recording(events))
+    programs.build_programs.cache_clear()
+    progs = programs.build_programs(chain)
+    assert events == []  # building compiles no evaluator
+    counted = dataclasses.replace(progs, chunk_fn=_CountedChunk(progs.chunk_fn, events))
+    monkeypatch.setattr(loop, "build_programs", lambda *a, **k: counted)
+    summary = runner.train(chain, tmp_path / "run", quiet=True)
+    assert events[:2] == ["chunk", "evaluator compile submitted"]
+    assert events.count("evaluator compile submitted") == 1  # every chunk asks; one compile
+    assert events.count("chunk") == 3
+    assert len(summary["eval_mean_return_per_seed"]) == 1
