@@ -9,6 +9,7 @@ GPU_FILES = ("scaling_gpu",)
 GPU4_FILES = ("scaling_gpu4",)
 JOYSTICK_FILES = ("scaling_gpu4_joystick",)
 JOYSTICK_SEEDS_FILES = ("scaling_gpu2_joystick_seeds",)
+FIRST_CHUNK_FILES = ("first_chunk_h200",)
 
 
 def _per_call(r: Row) -> str:
@@ -74,6 +75,24 @@ def scaling_gpu(recs: list[Rec]) -> Cells:
     return cells
 
 
+def first_chunk(recs: list[Rec]) -> Cells:
+    """The first chunk of each process (after init) and the time from the start of the
+    build to its end, with the rate of the chunk after it."""
+    (rec,) = recs
+    cells = [["process", "first chunk (trace, compile, run)", "build to first chunk's end",
+              "env steps/s after it"]]  # fmt: skip
+    for r in rec["rows"]:
+        cells.append(
+            [
+                str(r["run"]),
+                f"**{r['first_chunk_s']:.1f} s**",
+                f"{r['to_first_chunk_s']:.1f} s",
+                rate(r["env_steps_per_s"]),
+            ]
+        )
+    return cells
+
+
 TABLES = {
     "scaling-env": Table(FILES, scaling_env),
     "scaling-ppo": Table(FILES, scaling_ppo),
@@ -81,4 +100,5 @@ TABLES = {
     "scaling-gpu4": Table(GPU4_FILES, scaling_gpu),
     "scaling-gpu4-joystick": Table(JOYSTICK_FILES, scaling_gpu),
     "scaling-gpu2-joystick-seeds": Table(JOYSTICK_SEEDS_FILES, scaling_gpu),
+    "first-chunk-h200": Table(FIRST_CHUNK_FILES, first_chunk),
 }
