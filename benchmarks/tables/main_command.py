@@ -73,4 +73,8 @@ TABLES = {
         ("main_command_cpu2_worker",),
         lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
     ),
+    "main-command-ratios-evaluator-later-cpu2": Table(
+        ("main_command_cpu2_evaluator_later",),
+        lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
+    ),
 }
