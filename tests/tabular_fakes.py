@@ -126,3 +126,24 @@ def fake_envs() -> Iterator[None]:
         for env_id, spec in FAKES.items():
             mp.setitem(registry._REGISTRY, env_id, spec)
         yield
+
+
+def chain_run(chunks: int, num_seeds: int, **env: object) -> dict[str, object]:
+    """A Q-learning run config of ``Test-Chain-v0`` (two envs, 30 steps a chunk):
+    ``chunks`` chunks, ``num_seeds`` seeds, 3 evaluation episodes; ``env`` adds env
+    settings. The chain pays at position 6."""
+    return {
+        "algo": "qlearning",
+        "env": {"id": "Test-Chain-v0", "episode_length": 12, **env},
+        "agent": {
+            "alpha": 0.5,
+            "gamma": 0.9,
+            "number_splits": 7,
+            "obs_low": [0.0],
+            "obs_high": [7.0],
+            "num_envs": 2,
+            "chunk_steps": 30,
+            "total_steps": 2 * 30 * chunks,
+        },
+        "train": {"num_seeds": num_seeds, "eval_episodes": 3, "video": False},
+    }

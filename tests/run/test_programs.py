@@ -11,25 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import yaml
-from tabular_fakes import fake_envs
+from tabular_fakes import chain_run, fake_envs
 
 from jaxenvs.run import loop, programs, runner
 
-CHAIN_FILE = {
-    "algo": "qlearning",
-    "env": {"id": "Test-Chain-v0", "episode_length": 12},
-    "agent": {
-        "alpha": 0.5,
-        "gamma": 0.9,
-        "number_splits": 7,
-        "obs_low": [0.0],
-        "obs_high": [7.0],
-        "num_envs": 2,
-        "chunk_steps": 30,
-        "total_steps": 2 * 30 * 3,  # 3 chunks
-    },
-    "train": {"num_seeds": 1, "eval_episodes": 2, "video": False},
-}
+CHAIN_FILE = chain_run(chunks=3, num_seeds=1)  # one seed: init and chunk by over_seeds
 
 
 def _loop(carry, x):

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from tabular_fakes import fake_envs
+from tabular_fakes import chain_run, fake_envs
 
 from jaxenvs.run import checkpoint, loop, programs, runner
 
@@ -39,22 +39,8 @@ PPO_FILE = {
     "train": {"seed": 3, "eval_episodes": 2, "video": False},
 }
 
-CHAIN_FILE = {
-    "algo": "qlearning",
-    # the chain pays at position 6; past 4.5 the "physics" counts as diverged
-    "env": {"id": "Test-Chain-v0", "episode_length": 12, "divergence_bound": 4.5},
-    "agent": {
-        "alpha": 0.5,
-        "gamma": 0.9,
-        "number_splits": 7,
-        "obs_low": [0.0],
-        "obs_high": [7.0],
-        "num_envs": 2,
-        "chunk_steps": 30,
-        "total_steps": 2 * 30 * 4,  # 4 chunks
-    },
-    "train": {"num_seeds": 2, "eval_episodes": 3, "video": False},
-}
+# past 4.5 the chain's "physics" counts as diverged
+CHAIN_FILE = chain_run(chunks=4, num_seeds=2, divergence_bound=4.5)
 
 
 @pytest.fixture(scope="module")
