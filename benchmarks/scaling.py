@@ -9,13 +9,17 @@ in one of three modes:
 * ``strong``: the config's ``num_envs`` split over the devices;
 * ``seeds``: N seeds, each trained on a device of its own (no cross-device traffic).
 
-A row runs ``init``, a first chunk (compile and run: ``first_chunk_s``) and ``--chunks``
-timed chunks; ``env_steps_per_s`` is the env steps of the timed chunks (every seed's)
-over their wall time, compile excluded; ``train_seconds`` is the whole row's wall time,
-init and the first chunk included; ``speedup`` is over the one-device row of the same
-task (for ``seeds``: one seed on one device). ``--env-only`` adds a row of the env alone
-on one device (random actions, the same batch, solver and randomisation), for the ratio
-of PPO's rate to its env's.
+A row runs ``init``, a first chunk (compile and run: ``first_chunk_s``; from the build's
+start to its end: ``to_first_chunk_s``), then, once the evaluator that the run loop starts
+compiling after the first chunk has compiled, ``--chunks`` timed chunks;
+``env_steps_per_s`` is the env steps of the timed chunks (every seed's) over their wall
+time, compile excluded; ``train_seconds`` is the whole row's wall time, init, the first
+chunk and the evaluator's compile included (files from before 2026-12-01 compiled the
+evaluator beside the first chunk and did not wait for it; their one-seed rows also
+traced the seed axis that one seed now goes without); ``speedup`` is over the one-device
+row of the same task (for ``seeds``: one seed on one device). ``--env-only`` adds a row of
+the env alone on one device (random actions, the same batch, solver and randomisation),
+for the ratio of PPO's rate to its env's.
 
     python benchmarks/scaling.py --tasks HexapodWalk-v0 --devices 1 2 --modes weak seeds \\
         --chunks 3 --env-only --json scaling_gpu

@@ -1,7 +1,8 @@
 """The run loop: a run's chunks as transactions, its checkpoints, resume and Ctrl-C.
 
-:func:`train` is ``vmap(init)`` over ``num_seeds`` keys, then a Python loop over chunks of
-one jitted ``vmap(chunk)`` (:mod:`jaxenvs.run.programs`). Each chunk commits
+:func:`train` is ``init`` over ``num_seeds`` keys, then a Python loop over chunks of one
+jitted ``chunk`` over the seeds (:mod:`jaxenvs.run.programs`: a ``vmap`` for several seeds,
+one seed traced without it). Each chunk commits
 progress.csv and the checkpoint before the loop moves on, and a chunk is a pure function
 of the runner state, so resuming from the checkpoint after chunk ``i`` gives the same
 final state as a run that never stopped. A checkpoint records what it is a run of

@@ -72,13 +72,14 @@ class Programs:
 
 @functools.lru_cache(maxsize=4)
 def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Programs:
-    """Env, trainer, the jitted init and chunk over seeds (:func:`over_seeds`), and the
-    evaluator.
+    """Env, trainer, the jitted init and chunk over seeds (on one device
+    :func:`over_seeds`; over a mesh, ``jax.vmap``), and the evaluator.
 
     The evaluator is compiled on a background thread from :meth:`Programs.start_evaluator`
     on, which the run loop calls once the first chunk has compiled: its compile then
     overlaps the training chunks' run rather than the first chunk's tracing and compile
-    (on one H200 that contention added 7-11 s to the walker's first chunk). Cached per
+    (on one H200, alternating processes, that contention had cost the walker's first chunk
+    3-9 s). Cached per
     config, so a resume or a second run in the same process reuses the compiled programs.
     Over more than one device (``devices``; ``None``:
     :func:`jaxenvs.run.placement.run_mesh`), init and chunk split the env batch over a mesh

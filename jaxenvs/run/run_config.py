@@ -73,7 +73,9 @@ class RunConfig:
 
     Attributes:
       seed: the base seed; seed ``k`` of a multi-seed run uses ``fold_in(key(seed), k)``.
-      num_seeds: independent trainings vmapped together.
+      num_seeds: independent trainings run together as one program (``vmap``-ed; one seed
+        alone is traced without the seed axis, so its bits need not match the same seed's
+        in a batch of seeds).
       eval_episodes: greedy-policy episodes per seed for the final evaluation.
       eval_every: also evaluate every this many chunks (0: only at the end), logged as
         ``eval_return`` in progress.csv (for time-to-threshold measurements).

@@ -19,26 +19,46 @@ CHAIN_FILE = chain_run(chunks=3, num_seeds=1)  # one seed: init and chunk by ove
 
 
 def _loop(carry, x):
-    """A function with a loop over a carry, as a chunk has: the seed axis's batching rule
-    would trace its body again."""
+    """A function with a loop over a carry, as a chunk has (the seed axis's batching rule
+    would batch its body), a typed key and a ``None`` leaf."""
 
     def body(c, _):
         return c * 0.5 + x["a"], c.sum()
 
     out, sums = jax.lax.scan(body, carry, None, length=4)
-    return {"out": out, "sums": sums}
+    return {"out": out, "sums": sums, "key": jax.random.split(x["key"])[0], "none": None}
+
+
+def _inputs(seeds):
+    carry = jnp.arange(seeds * 2, dtype=jnp.float32).reshape(seeds, 2)
+    keys = jax.random.split(jax.random.key(0), seeds)
+    return carry, {"a": jnp.linspace(0.0, 1.0, seeds), "key": keys, "none": None}
 
 
 @pytest.mark.parametrize("seeds", [1, 3])
 def test_over_seeds_maps_the_leading_axis_as_vmap_does(seeds):
-    carry = jnp.arange(seeds * 2, dtype=jnp.float32).reshape(seeds, 2)
-    x = {"a": jnp.linspace(0.0, 1.0, seeds)}
-    got = jax.jit(programs.over_seeds(_loop, seeds))(carry, x)
-    want = jax.vmap(_loop)(carry, x)
+    got = jax.jit(programs.over_seeds(_loop, seeds))(*_inputs(seeds))
+    want = jax.vmap(_loop)(*_inputs(seeds))
     assert jax.tree.structure(got) == jax.tree.structure(want)
     for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
         assert g.shape == w.shape  # the seed axis is kept for one seed too
+        if jax.dtypes.issubdtype(g.dtype, jax.dtypes.prng_key):
+            g, w = jax.random.key_data(g), jax.random.key_data(w)
         np.testing.assert_allclose(g, w, rtol=1e-6)
+
+
+def test_one_seed_is_the_function_itself_not_a_vmap():
+    def plain(carry, x):  # drop the seed axis, call, restore it
+        out = _loop(*jax.tree.map(lambda a: a[0], (carry, x)))
+        return jax.tree.map(lambda a: a[None], out)
+
+    args = _inputs(1)
+    one = str(jax.make_jaxpr(programs.over_seeds(_loop, 1))(*args))
+    assert one == str(jax.make_jaxpr(plain)(*args))
+    assert one != str(jax.make_jaxpr(jax.vmap(_loop))(*args))
+    assert str(jax.make_jaxpr(programs.over_seeds(_loop, 3))(*_inputs(3))) == str(
+        jax.make_jaxpr(jax.vmap(_loop))(*_inputs(3))
+    )
 
 
 class _Recording(concurrent.futures.ThreadPoolExecutor):
@@ -61,6 +81,19 @@ def chain(tmp_path):
         yield runner.resolve_config(None, None, path)
 
 
+@pytest.fixture
+def events(monkeypatch):
+    """The submits to a recording background thread, with no programs cached before or
+    after (their compiles would have gone to it)."""
+    seen: list[str] = []
+    executor = _Recording(seen)
+    monkeypatch.setattr(programs, "_COMPILER", executor)
+    programs.build_programs.cache_clear()
+    yield seen
+    programs.build_programs.cache_clear()
+    executor.shutdown()
+
+
 class _CountedChunk:
     """A jitted chunk that notes each call."""
 
@@ -75,10 +108,7 @@ class _CountedChunk:
         return self.chunk.eval_shape(state)
 
 
-def test_evaluator_compiles_once_after_the_first_chunk(chain, tmp_path, monkeypatch):
-    events: list[str] = []
-    monkeypatch.setattr(programs, "_COMPILER", _Recording(events))
-    programs.build_programs.cache_clear()
+def test_evaluator_compiles_once_after_the_first_chunk(chain, events, tmp_path, monkeypatch):
     progs = programs.build_programs(chain)
     assert events == []  # building compiles no evaluator
     counted = dataclasses.replace(progs, chunk_fn=_CountedChunk(progs.chunk_fn, events))
@@ -88,3 +118,17 @@ def test_evaluator_compiles_once_after_the_first_chunk(chain, tmp_path, monkeypa
     assert events.count("evaluator compile submitted") == 1  # every chunk asks; one compile
     assert events.count("chunk") == 3
     assert len(summary["eval_mean_return_per_seed"]) == 1
+
+
+def test_an_evaluator_that_fails_to_compile_fails_the_evaluation(chain, events):
+    def broken():
+        raise RuntimeError("the evaluator did not compile")
+
+    progs = dataclasses.replace(
+        programs.build_programs(chain), evaluator=programs._Background(broken)
+    )
+    progs.start_evaluator()
+    for _ in range(2):  # the compile's error, each time it is asked for
+        with pytest.raises(RuntimeError, match="did not compile"):
+            progs.evaluate(None, jax.random.key(0))
+    assert events == ["evaluator compile submitted"]  # started once, not retried
