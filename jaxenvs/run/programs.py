@@ -31,7 +31,7 @@ PyTree = Any
 _COMPILER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxenvs-compile")
 
 
-class _Background:
+class BackgroundCompile:
     """``compile()`` run once on the background compile thread, when first asked for."""
 
     def __init__(self, compile: Callable[[], Any]) -> None:
@@ -56,7 +56,7 @@ class Programs:
     trainer: Trainer
     init_fn: Any
     chunk_fn: Any
-    evaluator: _Background
+    evaluator: BackgroundCompile
 
     def start_evaluator(self) -> None:
         """Start the evaluator's compile on the background thread (once; the run loop
@@ -93,7 +93,7 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     chunk_fn: Any
     if mesh.size > 1:  # laid out over the mesh, the evaluator too (jaxenvs.run.placement)
         trainer, init_fn, chunk_fn, compile_evaluate = mesh_programs(resolved, env, trainer, mesh)
-        return Programs(env, trainer, init_fn, chunk_fn, _Background(compile_evaluate))
+        return Programs(env, trainer, init_fn, chunk_fn, BackgroundCompile(compile_evaluate))
     seeds = resolved.train.num_seeds
     init_fn, chunk_fn = jit(over_seeds(trainer.init, seeds)), jit(over_seeds(trainer.chunk, seeds))
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
@@ -101,7 +101,7 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     key_shape = jax.eval_shape(lambda: eval_key(0))
     evaluate = jit(jax.vmap(evaluator, in_axes=(0, None)))
     params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), init_fn.eval_shape(keys))
-    later = _Background(lambda: evaluate.lower(params_shape, key_shape).compile())
+    later = BackgroundCompile(lambda: evaluate.lower(params_shape, key_shape).compile())
     return Programs(env, trainer, init_fn, chunk_fn, later)
 
 

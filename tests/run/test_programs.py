@@ -125,7 +125,7 @@ def test_an_evaluator_that_fails_to_compile_fails_the_evaluation(chain, events):
         raise RuntimeError("the evaluator did not compile")
 
     progs = dataclasses.replace(
-        programs.build_programs(chain), evaluator=programs._Background(broken)
+        programs.build_programs(chain), evaluator=programs.BackgroundCompile(broken)
     )
     progs.start_evaluator()
     for _ in range(2):  # the compile's error, each time it is asked for
