@@ -79,9 +79,8 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     on, which the run loop calls once the first chunk has compiled: its compile then
     overlaps the training chunks' run rather than the first chunk's tracing and compile
     (on one H200, alternating processes, that contention had cost the walker's first chunk
-    3-9 s). Cached per
-    config, so a resume or a second run in the same process reuses the compiled programs.
-    Over more than one device (``devices``; ``None``:
+    3-9 s). Cached per config, so a resume or a second run in the same process reuses the
+    compiled programs. Over more than one device (``devices``; ``None``:
     :func:`jaxenvs.run.placement.run_mesh`), init and chunk split the env batch over a mesh
     of them (:func:`jaxenvs.run.placement.mesh_programs`).
     """
@@ -97,7 +96,7 @@ def build_programs(resolved: ResolvedConfig, devices: int | None = None) -> Prog
     seeds = resolved.train.num_seeds
     init_fn, chunk_fn = jit(over_seeds(trainer.init, seeds)), jit(over_seeds(trainer.chunk, seeds))
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
-    keys = seed_keys(resolved.train.seed, resolved.train.num_seeds)
+    keys = seed_keys(resolved.train.seed, seeds)
     key_shape = jax.eval_shape(lambda: eval_key(0))
     evaluate = jit(jax.vmap(evaluator, in_axes=(0, None)))
     params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), init_fn.eval_shape(keys))
