@@ -17,7 +17,10 @@ time, compile excluded; ``train_seconds`` is the whole row's wall time, init, th
 chunk and the evaluator's compile included (files from before 2026-12-01 compiled the
 evaluator beside the first chunk and did not wait for it; their one-seed rows also
 traced the seed axis that one seed now goes without); ``speedup`` is over the one-device
-row of the same task (for ``seeds``: one seed on one device). ``--env-only`` adds a row of
+row of the same task (for ``seeds``: one seed on one device). ``--chunk`` picks how a
+one-device chunk runs (``staged``: its rollout's and learning's programs, compiled side by
+side; ``one``: one program; ``auto``: as a run picks, staged on an accelerator; rows record
+it as ``chunk``). ``--env-only`` adds a row of
 the env alone on one device (random actions, the same batch, solver and randomisation),
 for the ratio of PPO's rate to its env's.
 
@@ -53,13 +56,22 @@ def _resolved(task: str, mode: str, devices: int, overrides: dict[str, Any]) -> 
     return resolve_scaling(run_config.engine_resolved(r), devices)
 
 
+#: ``--chunk``: how a one-device chunk runs (``programs.build_programs``' ``staged``)
+CHUNKS = {"auto": None, "staged": True, "one": False}
+
+
 def ppo_row(
-    task: str, mode: str, devices: int, chunks: int, overrides: dict[str, Any]
+    task: str,
+    mode: str,
+    devices: int,
+    chunks: int,
+    overrides: dict[str, Any],
+    chunk: str = "auto",
 ) -> dict[str, Any]:
     """One row: PPO on ``task`` in ``mode`` over the first ``devices`` devices."""
     resolved = _resolved(task, mode, devices, overrides)
     t0 = time.perf_counter()
-    progs = programs.build_programs(resolved, devices)
+    progs = programs.build_programs(resolved, devices, CHUNKS[chunk])
     keys = run_config.seed_keys(0, resolved.train.num_seeds)
     state = jax.block_until_ready(progs.init_fn(keys))
     t1 = time.perf_counter()
@@ -77,6 +89,7 @@ def ppo_row(
         "task": task,
         "gpus": devices,
         "mode": mode,
+        "chunk": "staged" if isinstance(progs.chunk_fn, programs.StagedChunk) else "one",
         "env_steps_per_s": steps / timed,
         "train_seconds": time.perf_counter() - t0,
         "first_chunk_s": first,
@@ -134,6 +147,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--chunks", type=int, default=3, help="timed chunks a row")
     parser.add_argument("--num-envs", type=int, help="override the config's num_envs")
     parser.add_argument("--total-steps", type=int, help="override the config's total_steps")
+    parser.add_argument("--chunk", choices=CHUNKS, default="auto", help="how a chunk runs")
     parser.add_argument("--env-only", action="store_true", help="add the env-alone row")
     parser.add_argument("--json", default=None, help=results_io.HELP)
     args = parser.parse_args(argv)
@@ -160,7 +174,7 @@ def main(argv: list[str] | None = None) -> None:
     for task in args.tasks:
         for n in sorted(set(args.devices)):
             for mode in args.modes if n > 1 else ["weak"]:
-                report(ppo_row(task, mode, n, args.chunks, overrides))
+                report(ppo_row(task, mode, n, args.chunks, overrides, args.chunk))
         if args.env_only:
             report(env_row(task, 16 * 8, 3, overrides))
 

@@ -12,6 +12,9 @@ is a bundle of pure, jittable functions:
 * ``policy_params(runner_state) -> pytree``: what the greedy policy needs.
 * ``act(policy_params, obs, key) -> action``: the deterministic/greedy action for ONE
   observation (the key is for tie-breaking only); jittable and vmappable.
+* ``stages`` (optional): the chunk cut into the programs it runs in order
+  (:class:`Stages`), for a runner that compiles them apart (``chunk`` is
+  :func:`chunk_of` them).
 
 The full run is one compiled program: ``train(key)`` = ``init`` then a ``lax.scan`` of
 ``chunk`` (see :func:`make_train`); ``vmap`` over keys trains many seeds at once. The
@@ -41,6 +44,32 @@ CHUNK_METRICS = (
 
 
 @dataclass(frozen=True)
+class Stages:
+    """A chunk as the steps it runs: ``count`` updates, each ``learn(*collect(state))``,
+    then ``finish(state, metrics)`` with the updates' metrics stacked along a leading
+    axis. Pure and jittable each; :func:`chunk_of` is the chunk they make."""
+
+    collect: Callable[[PyTree], tuple[PyTree, PyTree]]  # state -> (state, batch)
+    learn: Callable[[PyTree, PyTree], tuple[PyTree, dict[str, jax.Array]]]
+    finish: Callable[[PyTree, dict[str, jax.Array]], dict[str, jax.Array]]
+    count: int
+
+
+def chunk_of(stages: Stages) -> Callable[[PyTree], tuple[PyTree, dict[str, jax.Array]]]:
+    """The chunk ``stages`` make, one function: a ``lax.scan`` of the updates, then
+    ``finish``."""
+
+    def update(state: PyTree, _: None) -> tuple[PyTree, dict[str, jax.Array]]:
+        return stages.learn(*stages.collect(state))
+
+    def chunk(state: PyTree) -> tuple[PyTree, dict[str, jax.Array]]:
+        state, metrics = jax.lax.scan(update, state, None, length=stages.count)
+        return state, stages.finish(state, metrics)
+
+    return chunk
+
+
+@dataclass(frozen=True)
 class Trainer:
     """Pure functions of one training setup (see the module docstring)."""
 
@@ -50,6 +79,7 @@ class Trainer:
     act: Callable[[PyTree, jax.Array, jax.Array], jax.Array]
     steps_per_chunk: int
     num_chunks: int
+    stages: Stages | None = None
 
 
 def make_train(trainer: Trainer) -> Callable[[jax.Array], tuple[PyTree, dict[str, jax.Array]]]:

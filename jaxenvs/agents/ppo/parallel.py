@@ -65,4 +65,5 @@ def over_mesh(trainer: Trainer, mesh: Mesh, critic: bool) -> Trainer:
     specs, whole = state_specs(axis, critic), PartitionSpec()
     init = placement.shard_map_lean(trainer.init, mesh, (whole,), specs)
     chunk = placement.shard_map_lean(trainer.chunk, mesh, (specs,), (specs, whole))
-    return dataclasses.replace(trainer, init=init, chunk=chunk)
+    # the stages are one device's share: over the mesh the chunk is one program
+    return dataclasses.replace(trainer, init=init, chunk=chunk, stages=None)

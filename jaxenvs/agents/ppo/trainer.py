@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +11,7 @@ import optax
 from jax.sharding import Mesh
 
 from jaxenvs.agents import losses
-from jaxenvs.agents.base import Trainer
+from jaxenvs.agents.base import Stages, Trainer, chunk_of
 from jaxenvs.agents.networks import ActorCritic
 from jaxenvs.agents.normalize import stats_init
 from jaxenvs.agents.ppo import parallel
@@ -22,6 +22,7 @@ from jaxenvs.agents.ppo.policy import (
     GAUSSIAN,
     PolicyParams,
     RunnerState,
+    Transition,
     check_critic_info,
     critic_inputs,
     make_network,
@@ -30,8 +31,6 @@ from jaxenvs.agents.ppo.policy import (
 from jaxenvs.agents.ppo.rollout import Collect, chunk_metrics, make_collect, make_env_step
 from jaxenvs.agents.ppo.update import make_epoch, make_optimizer
 from jaxenvs.core import BatchedEnv, Env
-
-Update = Callable[[RunnerState, None], tuple[RunnerState, dict[str, jax.Array]]]
 
 
 def make_trainer(env: Env | BatchedEnv, config: PPOConfig, mesh: Mesh | None = None) -> Trainer:
@@ -62,11 +61,7 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig, mesh: Mesh | None = N
     tx = make_optimizer(c)
     check_critic_info(single, c.critic_info)
     collect = make_collect(make_env_step(benv, net, head, c), c, devices)
-    update = _make_update(collect, make_epoch(net, head, tx, c, devices), c, devices)
-
-    def chunk(rs: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
-        rs, m = jax.lax.scan(update, rs, None, length=c.updates_per_chunk)
-        return rs, chunk_metrics(rs, m)
+    stages = _make_stages(collect, make_epoch(net, head, tx, c, devices), c, devices)
 
     def policy_params(rs: RunnerState) -> PolicyParams:
         return PolicyParams(rs.params, rs.obs_stats)
@@ -78,11 +73,12 @@ def make_trainer(env: Env | BatchedEnv, config: PPOConfig, mesh: Mesh | None = N
 
     trainer = Trainer(
         init=_make_init(benv, net, tx, c, devices),
-        chunk=chunk,
+        chunk=chunk_of(stages),
         policy_params=policy_params,
         act=act,
         steps_per_chunk=c.steps_per_chunk,
         num_chunks=c.num_chunks,
+        stages=stages,
     )
     if mesh is None or not devices.parallel:
         return trainer
@@ -129,20 +125,34 @@ def _make_init(
     return init
 
 
-def _make_update(
+class Batch(NamedTuple):
+    """What a PPO update's rollout hands its learning: the trajectory, the rollout's
+    episode figures and the key of the update's epochs."""
+
+    traj: Transition
+    episodes: dict[str, jax.Array]
+    epoch_key: jax.Array
+
+
+def _make_stages(
     collect: Collect,
     epoch: Callable[..., Any],
     config: PPOConfig,
     devices: Devices,
-) -> Update:
-    """One PPO iteration: a rollout (:func:`make_collect`), its advantages, then
-    ``update_epochs`` epochs of minibatch steps, each device on its own rollout."""
+) -> Stages:
+    """A chunk's PPO iterations as :class:`Stages`: ``collect`` a rollout
+    (:func:`make_collect`), then ``learn`` from it (its advantages, then ``update_epochs``
+    epochs of minibatch steps), each device on its own rollout."""
     c = config
 
-    def update(rs: RunnerState, _: None) -> tuple[RunnerState, dict[str, jax.Array]]:
+    def collect_stage(rs: RunnerState) -> tuple[RunnerState, Batch]:
         key, rollout_key, epoch_key = jax.random.split(rs.key, 3)
         rs = rs._replace(key=key)
         rs, traj, ep = collect(rs, devices.own_key(rollout_key))
+        return rs, Batch(traj, ep, epoch_key)
+
+    def learn(rs: RunnerState, batch: Batch) -> tuple[RunnerState, dict[str, jax.Array]]:
+        traj, ep = batch.traj, batch.episodes
         adv, ret = losses.gae(
             traj.reward,
             traj.value,
@@ -155,7 +165,7 @@ def _make_update(
         (params, opt_state, _data), stats = jax.lax.scan(
             epoch,
             (rs.params, rs.opt_state, (traj, adv, ret)),
-            jax.random.split(devices.own_key(epoch_key), c.update_epochs),
+            jax.random.split(devices.own_key(batch.epoch_key), c.update_epochs),
         )
         rs = rs._replace(
             params=params,
@@ -166,4 +176,4 @@ def _make_update(
         )
         return rs, {**ep, **{k: v[-1].mean() for k, v in stats.items()}}
 
-    return update
+    return Stages(collect_stage, learn, chunk_metrics, c.updates_per_chunk)
