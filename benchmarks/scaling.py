@@ -73,6 +73,7 @@ def ppo_row(
     t0 = time.perf_counter()
     progs = programs.build_programs(resolved, devices, CHUNKS[chunk])
     keys = run_config.seed_keys(0, resolved.train.num_seeds)
+    progs.start_chunk(progs.init_fn.eval_shape(keys))  # as the run loop does
     state = jax.block_until_ready(progs.init_fn(keys))
     t1 = time.perf_counter()
     state, metrics = progs.chunk_fn(state)

@@ -139,6 +139,7 @@ def _prepare(
         level = jax.ShapeDtypeStruct((resolved.train.num_seeds,), np.float32)
         metric_shapes = {**metric_shapes, LEVEL: level}
     columns = metric_columns(metric_shapes)
+    programs.start_chunk(template)  # a staged chunk compiles while init runs
     return _Run(resolved, out, programs, params_fn, keys, template, columns, say)
 
 

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 
 from jaxenvs.agents.base import Stages, Trainer
 from jaxenvs.core import Env
@@ -29,7 +30,8 @@ from jaxenvs.run.run_config import ResolvedConfig, build, seed_keys
 
 PyTree = Any
 
-_COMPILER = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="jaxenvs-compile")
+#: two threads: a staged chunk's two compiles side by side (the evaluator's comes later)
+_COMPILER = concurrent.futures.ThreadPoolExecutor(2, thread_name_prefix="jaxenvs-compile")
 
 
 class BackgroundCompile:
@@ -59,6 +61,13 @@ class Programs:
     chunk_fn: Any
     evaluator: BackgroundCompile
 
+    def start_chunk(self, state: PyTree) -> None:
+        """Start compiling the chunk for states like ``state`` on the background threads
+        when it runs in stages (:meth:`StagedChunk.start`); otherwise its first call
+        compiles it."""
+        if isinstance(self.chunk_fn, StagedChunk):
+            self.chunk_fn.start(state)
+
     def start_evaluator(self) -> None:
         """Start the evaluator's compile on the background thread (once; the run loop
         calls it when the first chunk's call has returned, i.e. has compiled, so that the
@@ -76,13 +85,14 @@ class StagedChunk:
     times the rollout's (``collect``) then the learning's, then ``finish``'s. Called like
     the jitted chunk (``chunk(state) -> (state, metrics)``, and ``eval_shape``).
 
-    Its first call compiles the three apart: the rollout's on the background compile
-    thread while this thread traces and compiles the other two. One program, the walker's
-    chunk compiled in 28.5 s on one H200; apart, its rollout in 21.9 s and the learning in
-    6.8 s, 19.1 s side by side. The computation is the chunk's (:func:`chunk_of`), but XLA
-    compiles other programs, so its bits may differ from the chunk as one program. It
-    launches two programs per update, a few dozen a chunk, which an accelerator queues
-    behind the running one.
+    The three compile apart on the two background compile threads (:meth:`start`), the
+    rollout's on one and the learning's and ``finish``'s on the other, from when the run
+    loop starts them, before ``init`` runs; the first call waits for them. As one program
+    the walker's chunk compiled in 28.5 s on one H200; apart, its rollout in 21.9 s and
+    its learning in 6.8 s. The computation is the chunk's (:func:`chunk_of`); XLA compiles
+    other programs, so on an accelerator its bits may differ from the chunk as one program
+    (on a CPU the tests find them equal). It launches two programs per update, a few dozen
+    a chunk, which an accelerator queues behind the running one.
     """
 
     def __init__(self, stages: Stages, num_seeds: int) -> None:
@@ -91,7 +101,7 @@ class StagedChunk:
         self._learn = jit(over_seeds(stages.learn, num_seeds))
         self._finish = jit(over_seeds(_over_stacked(stages.finish), num_seeds))
         self._lock = threading.Lock()
-        self._compiled: tuple[Any, Any, Any] | None = None
+        self._pending: tuple[concurrent.futures.Future, concurrent.futures.Future] | None = None
 
     def eval_shape(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
         """The shapes of ``self(state)``, from each program's trace."""
@@ -99,22 +109,33 @@ class StagedChunk:
         state, metrics = self._learn.eval_shape(state, batch)
         return state, self._finish.eval_shape(state, (metrics,) * self._count)
 
-    def compile(self, state: PyTree) -> tuple[Any, Any, Any]:
-        """The compiled rollout, learning and finish for states like ``state`` (compiled
-        on the first call, the rollout on the background thread)."""
+    def start(self, state: PyTree) -> None:
+        """Start compiling the programs for states like ``state`` (arrays or their
+        ``eval_shape``), once: the rollout's on one background compile thread, the
+        learning's and ``finish``'s on the other. The run loop starts it before ``init``
+        runs; the first call starts it if nothing has."""
         with self._lock:
-            if self._compiled is None:
-                rollout = _COMPILER.submit(self._collect.trace(state).lower().compile)
-                state, batch = self._collect.eval_shape(state)
-                learn = self._learn.trace(state, batch).lower().compile()
-                state, metrics = self._learn.eval_shape(state, batch)
-                stacked = (metrics,) * self._count
-                finish = self._finish.trace(state, stacked).lower().compile()
-                self._compiled = (rollout.result(), learn, finish)
-            return self._compiled
+            if self._pending is None:
+                rollout = _COMPILER.submit(lambda: self._collect.trace(state).lower().compile())
+                self._pending = (rollout, _COMPILER.submit(self._compile_rest, state))
+
+    def _compile_rest(self, state: PyTree) -> tuple[Any, Any]:
+        state, batch = self._collect.eval_shape(state)
+        learn = self._learn.trace(state, batch).lower().compile()
+        state, metrics = self._learn.eval_shape(state, batch)
+        finish = self._finish.trace(state, (metrics,) * self._count).lower().compile()
+        return learn, finish
+
+    def compiled(self, state: PyTree) -> tuple[Any, Any, Any]:
+        """The compiled rollout, learning and finish (starting their compile if nothing
+        has, and waiting for it)."""
+        self.start(state)
+        assert self._pending is not None
+        rollout, rest = self._pending
+        return (rollout.result(), *rest.result())
 
     def __call__(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
-        collect, learn, finish = self.compile(state)
+        collect, learn, finish = self.compiled(state)
         metrics = []
         for _ in range(self._count):
             state, batch = collect(state)
@@ -127,15 +148,16 @@ def _over_stacked(finish: Callable[[PyTree, Any], Any]) -> Callable[[PyTree, Any
     """``finish`` of a tuple of updates' metrics, stacked along a new leading axis."""
 
     def stacked(state: PyTree, metrics: tuple[Any, ...]) -> Any:
-        return finish(state, jax.tree.map(lambda *m: jax.numpy.stack(m), *metrics))
+        return finish(state, jax.tree.map(lambda *m: jnp.stack(m), *metrics))
 
     return stacked
 
 
 def default_staged() -> bool:
     """Whether a run's chunk runs in stages (:class:`StagedChunk`) unless told: on an
-    accelerator, where it compiles sooner; on a CPU the chunk compiles in a few seconds
-    and stays one program."""
+    accelerator, where the walker's first chunk came 8-14 s sooner; on a CPU, whose
+    chunks compile in seconds and whose two cores the two compiles would share, it stays
+    one program."""
     return jax.default_backend() != "cpu"
 
 

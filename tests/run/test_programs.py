@@ -1,5 +1,5 @@
 """A run's programs: one seed traced without the seed axis, the evaluator compiled only
-once the first chunk has."""
+once the first chunk has, a chunk run in stages."""
 
 from __future__ import annotations
 
@@ -69,7 +69,7 @@ class _Recording(concurrent.futures.ThreadPoolExecutor):
         self.events = events
 
     def submit(self, fn, /, *args, **kwargs):
-        self.events.append("evaluator compile submitted")
+        self.events.append("submitted")
         return super().submit(fn, *args, **kwargs)
 
 
@@ -114,8 +114,8 @@ def test_evaluator_compiles_once_after_the_first_chunk(chain, events, tmp_path, 
     counted = dataclasses.replace(progs, chunk_fn=_CountedChunk(progs.chunk_fn, events))
     monkeypatch.setattr(loop, "build_programs", lambda *a, **k: counted)
     summary = runner.train(chain, tmp_path / "run", quiet=True)
-    assert events[:2] == ["chunk", "evaluator compile submitted"]
-    assert events.count("evaluator compile submitted") == 1  # every chunk asks; one compile
+    assert events[:2] == ["chunk", "submitted"]
+    assert events.count("submitted") == 1  # every chunk asks; one compile
     assert events.count("chunk") == 3
     assert len(summary["eval_mean_return_per_seed"]) == 1
 
@@ -131,4 +131,40 @@ def test_an_evaluator_that_fails_to_compile_fails_the_evaluation(chain, events):
     for _ in range(2):  # the compile's error, each time it is asked for
         with pytest.raises(RuntimeError, match="did not compile"):
             progs.evaluate(None, jax.random.key(0))
-    assert events == ["evaluator compile submitted"]  # started once, not retried
+    assert events == ["submitted"]  # started once, not retried
+
+
+PPO_AGENT = {
+    "num_envs": 4,
+    "num_steps": 8,
+    "updates_per_chunk": 2,
+    "update_epochs": 1,
+    "num_minibatches": 2,
+    "actor_hidden": [8],
+    "critic_hidden": [8],
+}
+
+
+def test_a_staged_chunk_compiles_before_its_call_and_is_the_chunk(events):
+    """Its two compiles are submitted when the run loop starts them, before ``init``
+    runs, and its results over several seeds are the one-program chunk's on a CPU."""
+    train = {"num_seeds": 2, "video": False}
+    resolved = runner.resolve_config("CartPole-v0", "ppo", None, PPO_AGENT, train)
+    assert not programs.default_staged()  # a CPU runs the chunk as one program
+    progs = programs.build_programs(resolved, None, True)
+    assert isinstance(progs.chunk_fn, programs.StagedChunk)
+    keys = runner.seed_keys(0, 2)
+    progs.start_chunk(progs.init_fn.eval_shape(keys))
+    assert events == ["submitted"] * 2  # the rollout's, and the learning's with finish's
+    one = jax.jit(jax.vmap(progs.trainer.chunk))
+    staged = want = progs.init_fn(keys)
+    for _ in range(2):
+        staged, got_metrics = progs.chunk_fn(staged)
+        want, want_metrics = one(want)
+    assert events == ["submitted"] * 2  # compiled once
+    assert jax.tree.structure(got_metrics) == jax.tree.structure(want_metrics)
+    got, want = jax.tree.leaves((staged, got_metrics)), jax.tree.leaves((want, want_metrics))
+    for g, w in zip(got, want, strict=True):
+        if jax.dtypes.issubdtype(g.dtype, jax.dtypes.prng_key):
+            g, w = jax.random.key_data(g), jax.random.key_data(w)
+        np.testing.assert_array_equal(g, w)

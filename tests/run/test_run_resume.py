@@ -149,6 +149,30 @@ def test_ppo_ctrl_c_then_resume_gives_the_same_results(ppo, tmp_path, monkeypatc
     _same_checkpoint(out_a, tmp_path)
 
 
+def test_ppo_in_stages_gives_the_one_program_results_and_resumes(ppo, tmp_path, monkeypatch):
+    """The chunk as its rollout's and learning's programs (as an accelerator runs it),
+    here on a CPU: the results of the chunk as one program, bit for bit, and a Ctrl-C
+    and resume reaches them too."""
+    resolved, out_a, summary_a = ppo
+    # the programs the run built (their init compiled once for the module), as it asks
+    one = programs.build_programs(loop.resolve_scaling(loop.engine_resolved(resolved), None), None)
+    stages = programs.StagedChunk(one.trainer.stages, resolved.train.num_seeds)
+    staged = dataclasses.replace(one, chunk_fn=stages)
+    monkeypatch.setattr(loop, "build_programs", lambda r, d=None: staged)
+    summary = runner.train(resolved, tmp_path / "whole", quiet=True)
+    assert _figures(summary) == _figures(summary_a)
+    assert _rows(out_a) == _rows(tmp_path / "whole")
+    _same_checkpoint(out_a, tmp_path / "whole")
+    real = _interrupt_at(monkeypatch, 2)
+    with pytest.raises(KeyboardInterrupt):
+        runner.train(resolved, tmp_path / "cut", quiet=True)
+    monkeypatch.setattr(loop, "write_progress", real)
+    again = runner.load_run_config(tmp_path / "cut")
+    summary = runner.train(again, tmp_path / "cut", resume=True, quiet=True)
+    assert _figures(summary) == _figures(summary_a)
+    _same_checkpoint(out_a, tmp_path / "cut")
+
+
 def test_ppo_divergence_is_counted_in_the_run_metrics(ppo):
     _, out_a, summary = ppo
     rows = runner.read_progress(out_a / runner.PROGRESS_FILE)
