@@ -10,6 +10,7 @@ GPU4_FILES = ("scaling_gpu4",)
 JOYSTICK_FILES = ("scaling_gpu4_joystick",)
 JOYSTICK_SEEDS_FILES = ("scaling_gpu2_joystick_seeds",)
 FIRST_CHUNK_FILES = ("first_chunk_h200",)
+STAGED_FILES = ("first_chunk_staged_h200",)
 
 
 def _per_call(r: Row) -> str:
@@ -93,6 +94,25 @@ def first_chunk(recs: list[Rec]) -> Cells:
     return cells
 
 
+def first_chunk_staged(recs: list[Rec]) -> Cells:
+    """The first chunk of each process, in the order they ran, by how the chunk ran."""
+    (rec,) = recs
+    cells = [["process", "chunk", "first chunk (after init)", "build to first chunk's end",
+              "env steps/s after it"]]  # fmt: skip
+    for r in rec["rows"]:
+        how = "its stages' programs" if r["chunk"] == "staged" else "one program"
+        cells.append(
+            [
+                str(r["run"]),
+                how,
+                f"**{r['first_chunk_s']:.1f} s**",
+                f"{r['to_first_chunk_s']:.1f} s",
+                rate(r["env_steps_per_s"]),
+            ]
+        )
+    return cells
+
+
 TABLES = {
     "scaling-env": Table(FILES, scaling_env),
     "scaling-ppo": Table(FILES, scaling_ppo),
@@ -101,4 +121,5 @@ TABLES = {
     "scaling-gpu4-joystick": Table(JOYSTICK_FILES, scaling_gpu),
     "scaling-gpu2-joystick-seeds": Table(JOYSTICK_SEEDS_FILES, scaling_gpu),
     "first-chunk-h200": Table(FIRST_CHUNK_FILES, first_chunk),
+    "first-chunk-staged-h200": Table(STAGED_FILES, first_chunk_staged),
 }

@@ -360,6 +360,7 @@ TABLES = {
     "walker-seeds": Table(("ppo_walker_seeds_h200",), walker_seeds),
     "walker-waypoints": Table(("ppo_walker_waypoints_pyramidal_h200",), walker_waypoints),
     "walker-waypoints-elliptic": Table(("ppo_walker_waypoints_h200",), walker_waypoints),
+    "walker-waypoints-staged": Table(("ppo_walker_staged_h200",), walker_waypoints),
     "walker-waypoints-before": Table(("ppo_walker_waypoints_h100",), walker_waypoints),
     "walker-waypoints-gpus2": Table(("ppo_walker_waypoints_gpus2_h200",), walker_waypoints),
     "walker-waypoints-gpus1": Table(("ppo_walker_waypoints_gpus1_h200",), walker_waypoints),
