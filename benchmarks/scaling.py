@@ -73,7 +73,9 @@ def ppo_row(
     t0 = time.perf_counter()
     progs = programs.build_programs(resolved, devices, CHUNKS[chunk])
     keys = run_config.seed_keys(0, resolved.train.num_seeds)
-    progs.start_chunk(progs.init_fn.eval_shape(keys))  # as the run loop does
+    template = progs.init_fn.eval_shape(keys)  # as the run loop does: the traces, then
+    progs.chunk_fn.eval_shape(template)  # the compiles of a chunk in stages beside init's
+    progs.start_chunk(template)
     state = jax.block_until_ready(progs.init_fn(keys))
     t1 = time.perf_counter()
     state, metrics = progs.chunk_fn(state)

@@ -1,8 +1,9 @@
 """The run loop: a run's chunks as transactions, its checkpoints, resume and Ctrl-C.
 
-:func:`train` is ``init`` over ``num_seeds`` keys, then a Python loop over chunks of one
-jitted ``chunk`` over the seeds (:mod:`jaxenvs.run.programs`: a ``vmap`` for several seeds,
-one seed traced without it). Each chunk commits
+:func:`train` is ``init`` over ``num_seeds`` keys, then a Python loop over chunks of the
+compiled chunk over the seeds (:mod:`jaxenvs.run.programs`: a ``vmap`` for several seeds,
+one seed traced without it; on an accelerator a PPO chunk runs as its stages' programs,
+whose compiles start before ``init`` runs). Each chunk commits
 progress.csv and the checkpoint before the loop moves on, and a chunk is a pure function
 of the runner state, so resuming from the checkpoint after chunk ``i`` gives the same
 final state as a run that never stopped. A checkpoint records what it is a run of
@@ -139,7 +140,6 @@ def _prepare(
         level = jax.ShapeDtypeStruct((resolved.train.num_seeds,), np.float32)
         metric_shapes = {**metric_shapes, LEVEL: level}
     columns = metric_columns(metric_shapes)
-    programs.start_chunk(template)  # a staged chunk compiles while init runs
     return _Run(resolved, out, programs, params_fn, keys, template, columns, say)
 
 
@@ -171,6 +171,7 @@ def _start(run: _Run, clock: _Clock) -> RunState:
     # the env's config holds the engine "auto" resolved to (``physics``)
     record = dataclasses.replace(run.resolved, env=run.programs.env.config).to_dict()
     files.write_text(run.out / CONFIG_FILE, yaml.safe_dump(record, sort_keys=False))
+    run.programs.start_chunk(run.template)  # a chunk in stages compiles while init runs
     state = run.programs.init_fn(run.keys)
     rs = RunState(state, [], np.full((run.num_seeds, 0), -1.0, np.float32), False, 0)
     _save_checkpoint(run, clock, rs)
@@ -329,7 +330,12 @@ def train(
         files.remove_temporaries(out, RUN_FILES)
         try:
             run = _prepare(resolved, out, devices, say)
-            rs, clock = _resume(run, clock) if resume else (_start(run, clock), clock)
+            if resume:
+                rs, clock = _resume(run, clock)
+                if not rs.finished:
+                    run.programs.start_chunk(run.template)
+            else:
+                rs = _start(run, clock)
         except KeyboardInterrupt:
             if not resume:
                 say(f"interrupted before the first checkpoint: nothing to resume in {out}")

@@ -35,7 +35,7 @@ _COMPILER = concurrent.futures.ThreadPoolExecutor(2, thread_name_prefix="jaxenvs
 
 
 class BackgroundCompile:
-    """``compile()`` run once on the background compile thread, when first asked for."""
+    """``compile()`` run once on a background compile thread, when first asked for."""
 
     def __init__(self, compile: Callable[[], Any]) -> None:
         self._compile = compile
@@ -53,7 +53,7 @@ class BackgroundCompile:
 @dataclasses.dataclass(frozen=True)
 class Programs:
     """A run's env and trainer with its jitted init and chunk (over seeds) and its
-    evaluator, compiled on the background thread from :meth:`start_evaluator` on."""
+    evaluator, compiled on a background thread from :meth:`start_evaluator` on."""
 
     env: Env
     trainer: Trainer
@@ -69,7 +69,7 @@ class Programs:
             self.chunk_fn.start(state)
 
     def start_evaluator(self) -> None:
-        """Start the evaluator's compile on the background thread (once; the run loop
+        """Start the evaluator's compile on a background thread (once; the run loop
         calls it when the first chunk's call has returned, i.e. has compiled, so that the
         two programs' tracing and compiling do not share the machine)."""
         self.evaluator.start()
@@ -87,12 +87,15 @@ class StagedChunk:
 
     The three compile apart on the two background compile threads (:meth:`start`), the
     rollout's on one and the learning's and ``finish``'s on the other, from when the run
-    loop starts them, before ``init`` runs; the first call waits for them. As one program
+    loop starts them, after their traces (``eval_shape``) and before ``init`` compiles and
+    runs; the first call waits for them. A process exits only once compiles it started
+    have ended. As one program
     the walker's chunk compiled in 28.5 s on one H200; apart, its rollout in 21.9 s and
     its learning in 6.8 s. The computation is the chunk's (:func:`chunk_of`); XLA compiles
     other programs, so on an accelerator its bits may differ from the chunk as one program
-    (on a CPU the tests find them equal). It launches two programs per update, a few dozen
-    a chunk, which an accelerator queues behind the running one.
+    (on a CPU the tests find them equal). It launches two programs per update and one to
+    finish (17 a chunk for the walker's 8 updates), which an accelerator queues behind the
+    running one.
     """
 
     def __init__(self, stages: Stages, num_seeds: int) -> None:
@@ -128,11 +131,17 @@ class StagedChunk:
 
     def compiled(self, state: PyTree) -> tuple[Any, Any, Any]:
         """The compiled rollout, learning and finish (starting their compile if nothing
-        has, and waiting for it)."""
+        has, and waiting for it). A compile's error is raised, and the next call starts
+        the compiles again."""
         self.start(state)
         assert self._pending is not None
         rollout, rest = self._pending
-        return (rollout.result(), *rest.result())
+        try:
+            return (rollout.result(), *rest.result())
+        except BaseException:  # a failed compile: raised here, tried again on the next call
+            with self._lock:
+                self._pending = None
+            raise
 
     def __call__(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
         collect, learn, finish = self.compiled(state)
@@ -155,7 +164,8 @@ def _over_stacked(finish: Callable[[PyTree, Any], Any]) -> Callable[[PyTree, Any
 
 def default_staged() -> bool:
     """Whether a run's chunk runs in stages (:class:`StagedChunk`) unless told: on an
-    accelerator, where the walker's first chunk came 8-14 s sooner; on a CPU, whose
+    accelerator, where the walker's first chunk ended 7-15 s sooner from the build's start
+    on one H200; on a CPU, whose
     chunks compile in seconds and whose two cores the two compiles would share, it stays
     one program."""
     return jax.default_backend() != "cpu"

@@ -13,6 +13,7 @@ import pytest
 import yaml
 from tabular_fakes import chain_run, fake_envs
 
+from jaxenvs.agents.base import Stages
 from jaxenvs.run import loop, programs, runner
 
 CHAIN_FILE = chain_run(chunks=3, num_seeds=1)  # one seed: init and chunk by over_seeds
@@ -150,7 +151,6 @@ def test_a_staged_chunk_compiles_before_its_call_and_is_the_chunk(events):
     runs, and its results over several seeds are the one-program chunk's on a CPU."""
     train = {"num_seeds": 2, "video": False}
     resolved = runner.resolve_config("CartPole-v0", "ppo", None, PPO_AGENT, train)
-    assert not programs.default_staged()  # a CPU runs the chunk as one program
     progs = programs.build_programs(resolved, None, True)
     assert isinstance(progs.chunk_fn, programs.StagedChunk)
     keys = runner.seed_keys(0, 2)
@@ -168,3 +168,34 @@ def test_a_staged_chunk_compiles_before_its_call_and_is_the_chunk(events):
         if jax.dtypes.issubdtype(g.dtype, jax.dtypes.prng_key):
             g, w = jax.random.key_data(g), jax.random.key_data(w)
         np.testing.assert_array_equal(g, w)
+
+
+@pytest.mark.parametrize(("backend", "staged"), [("cpu", False), ("gpu", True), ("tpu", True)])
+def test_a_chunk_runs_in_stages_by_default_on_an_accelerator(monkeypatch, backend, staged):
+    monkeypatch.setattr(jax, "default_backend", lambda: backend)
+    assert programs.default_staged() is staged
+
+
+def test_a_staged_chunk_whose_compile_failed_compiles_again_on_the_next_call():
+    traces = []
+
+    def collect(state):
+        traces.append("collect")
+        if len(traces) == 1:
+            raise RuntimeError("the rollout did not compile")
+        return state + 1.0, state
+
+    stages = Stages(
+        collect=collect,
+        learn=lambda state, batch: (state + batch, {"x": batch.sum()}),
+        finish=lambda state, m: {"x": m["x"].sum(), "last": state.sum()},
+        count=2,
+    )
+    chunk = programs.StagedChunk(stages, 1)
+    state = jnp.ones((1, 3), jnp.float32)
+    with pytest.raises(RuntimeError, match="did not compile"):
+        chunk(state)
+    state, metrics = chunk(state)  # 1 -> 2 + 1 = 3 -> 4 + 3 = 7; batches' sums 3 and 9
+    np.testing.assert_array_equal(state, [[7.0, 7.0, 7.0]])
+    np.testing.assert_array_equal(metrics["x"], [12.0])
+    np.testing.assert_array_equal(metrics["last"], [21.0])
