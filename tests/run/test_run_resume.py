@@ -151,26 +151,55 @@ def test_ppo_ctrl_c_then_resume_gives_the_same_results(ppo, tmp_path, monkeypatc
 
 def test_ppo_in_stages_gives_the_one_program_results_and_resumes(ppo, tmp_path, monkeypatch):
     """The chunk as its rollout's and learning's programs (as an accelerator runs it),
-    here on a CPU: the results of the chunk as one program, bit for bit, and a Ctrl-C
-    and resume reaches them too."""
+    here on a CPU: under the C engine the results of the chunk as one program, bit for
+    bit; under MJX, whose programs XLA fuses otherwise, the same to float32 rounding. A
+    Ctrl-C and resume reaches the uninterrupted staged run bit for bit."""
     resolved, out_a, summary_a = ppo
     # the programs the run built (their init compiled once for the module), as it asks
     one = programs.build_programs(loop.resolve_scaling(loop.engine_resolved(resolved), None), None)
     stages = programs.StagedChunk(one.trainer.stages, resolved.train.num_seeds)
     staged = dataclasses.replace(one, chunk_fn=stages)
     monkeypatch.setattr(loop, "build_programs", lambda r, d=None: staged)
-    summary = runner.train(resolved, tmp_path / "whole", quiet=True)
-    assert _figures(summary) == _figures(summary_a)
-    assert _rows(out_a) == _rows(tmp_path / "whole")
-    _same_checkpoint(out_a, tmp_path / "whole")
+    whole = runner.train(resolved, tmp_path / "whole", quiet=True)
+    if whole["physics"] == "c":
+        assert _figures(whole) == _figures(summary_a)
+        assert _rows(out_a) == _rows(tmp_path / "whole")
+        _same_checkpoint(out_a, tmp_path / "whole")
+    else:
+        _close_rows(_rows(out_a), _rows(tmp_path / "whole"))
+        _close_checkpoint(out_a, tmp_path / "whole")
     real = _interrupt_at(monkeypatch, 2)
     with pytest.raises(KeyboardInterrupt):
         runner.train(resolved, tmp_path / "cut", quiet=True)
     monkeypatch.setattr(loop, "write_progress", real)
     again = runner.load_run_config(tmp_path / "cut")
     summary = runner.train(again, tmp_path / "cut", resume=True, quiet=True)
-    assert _figures(summary) == _figures(summary_a)
-    _same_checkpoint(out_a, tmp_path / "cut")
+    assert _figures(summary) == _figures(whole)
+    assert _rows(tmp_path / "cut") == _rows(tmp_path / "whole")
+    _same_checkpoint(tmp_path / "whole", tmp_path / "cut")
+
+
+def _close_rows(want, got):
+    """progress.csv rows with the same keys and integers, floats within 1e-3 (or 1e-6)."""
+    assert [r.keys() for r in want] == [r.keys() for r in got]
+    for a, b in zip(want, got, strict=True):
+        for k in a:
+            if a[k].lstrip("-").isdigit():
+                assert a[k] == b[k], k
+            else:
+                np.testing.assert_allclose(
+                    float(b[k]), float(a[k]), rtol=1e-3, atol=1e-6, err_msg=k
+                )
+
+
+def _close_checkpoint(a, b):
+    (la, meta_a), (lb, meta_b) = _ckpt(a), _ckpt(b)
+    assert meta_a.keys() == meta_b.keys()
+    for x, y in zip(la, lb, strict=True):
+        if np.issubdtype(x.dtype, np.floating):
+            np.testing.assert_allclose(y, x, rtol=1e-3, atol=1e-6)
+        else:
+            np.testing.assert_array_equal(y, x)
 
 
 def test_ppo_divergence_is_counted_in_the_run_metrics(ppo):
