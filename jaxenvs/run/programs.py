@@ -89,14 +89,13 @@ class StagedChunk:
     rollout's on one and the learning's and ``finish``'s on the other, from when the run
     loop starts them, after their traces (``eval_shape``) and before ``init`` compiles and
     runs; the first call waits for them. A process exits only once compiles it started
-    have ended. As one program
-    the walker's chunk compiled in 28.5 s on one H200; apart, its rollout in 21.9 s and
-    its learning in 6.8 s. The computation is the chunk's (:func:`chunk_of`); XLA compiles
-    other programs, so on an accelerator its bits may differ from the chunk as one program
-    (on a CPU the tests find them equal under the C engine, and equal to float32 rounding
-    under MJX). It launches two programs per update and one to
-    finish (17 a chunk for the walker's 8 updates), which an accelerator queues behind the
-    running one.
+    have ended. As one program the walker's chunk compiled in 28.5 s on one H200; apart,
+    its rollout in 21.9 s and its learning in 6.8 s. The computation is the chunk's
+    (:func:`chunk_of`); XLA compiles other programs, so on an accelerator its bits may
+    differ from the chunk as one program (on a CPU the tests find them equal under the C
+    engine, and equal to float32 rounding under MJX). It launches two programs per update
+    and one to finish (17 a chunk for the walker's 8 updates), which an accelerator queues
+    behind the running one.
     """
 
     def __init__(self, stages: Stages, num_seeds: int) -> None:
@@ -125,10 +124,10 @@ class StagedChunk:
 
     def _compile_rest(self, state: PyTree) -> tuple[Any, Any]:
         state, batch = self._collect.eval_shape(state)
-        learn = self._learn.trace(state, batch).lower().compile()
-        state, metrics = self._learn.eval_shape(state, batch)
-        finish = self._finish.trace(state, (metrics,) * self._count).lower().compile()
-        return learn, finish
+        learn = self._learn.trace(state, batch)
+        state, metrics = learn.out_info
+        finish = self._finish.trace(state, (metrics,) * self._count)
+        return learn.lower().compile(), finish.lower().compile()
 
     def compiled(self, state: PyTree) -> tuple[Any, Any, Any]:
         """The compiled rollout, learning and finish (starting their compile if nothing
@@ -166,9 +165,8 @@ def _over_stacked(finish: Callable[[PyTree, Any], Any]) -> Callable[[PyTree, Any
 def default_staged() -> bool:
     """Whether a run's chunk runs in stages (:class:`StagedChunk`) unless told: on an
     accelerator, where the walker's first chunk ended 7-15 s sooner from the build's start
-    on one H200; on a CPU, whose
-    chunks compile in seconds and whose two cores the two compiles would share, it stays
-    one program."""
+    on one H200; on a CPU, whose chunks compile in seconds (the main job on two cores
+    showed no clear gain in stages), it stays one program."""
     return jax.default_backend() != "cpu"
 
 
