@@ -1,5 +1,5 @@
 """How jaxenvs asks XLA to compile its programs: :func:`jit`, ``jax.jit`` with
-:data:`COMPILER_OPTIONS`.
+:data:`COMPILER_OPTIONS`, and :func:`jit_once` for a program a run calls once.
 
 On a CPU, XLA's MLIR fusion emitters (its default) cost more compile time and memory on
 our programs than its LLVM loop emitters, for the same or better speed: the options pick
@@ -17,6 +17,14 @@ pass ``compiler_options=dict(COMPILER_OPTIONS)``) to get the same programs::
 
     import jaxenvs.machine
     step = jaxenvs.machine.jit(benv.step, donate_argnums=0)
+
+A program that runs once per run (a run's init: the networks' initialisers and the first
+reset) is compiled on a CPU with LLVM's optimisations off as well (:data:`ONCE_OPTIONS`):
+its compile is on the critical path of every cold run and its run is not. On the 2-core
+machine the main job's cold run ended 1.2 s sooner at the median of five (the figures in
+benchmarks/RESULTS.md, "Init compiled without LLVM's optimisations"). The init's results
+differ from an optimised compile's in the last bits of its floats, so a run's numbers are
+those of another, equally valid start.
 """
 
 from __future__ import annotations
@@ -31,6 +39,8 @@ import jax
 COMPILER_OPTIONS: Mapping[str, Any] = MappingProxyType(
     {"xla_cpu_use_fusion_emitters": False} if jax.__version_info__ < (0, 11) else {}
 )
+#: what :func:`jit_once` adds on a CPU: LLVM at -O0
+ONCE_OPTIONS: Mapping[str, Any] = MappingProxyType({"xla_backend_optimization_level": 0})
 
 
 def jit(fun: Callable[..., Any], **kwargs: Any) -> Any:
@@ -39,3 +49,12 @@ def jit(fun: Callable[..., Any], **kwargs: Any) -> Any:
     it outermost, as XLA takes options only there."""
     options = {**COMPILER_OPTIONS, **(kwargs.pop("compiler_options", None) or {})}
     return jax.jit(fun, compiler_options=options or None, **kwargs)
+
+
+def jit_once(fun: Callable[..., Any], **kwargs: Any) -> Any:
+    """:func:`jit` for a program a run calls once: where JAX's default backend is a CPU,
+    compiled with :data:`ONCE_OPTIONS` too (elsewhere exactly :func:`jit`)."""
+    if jax.default_backend() != "cpu":
+        return jit(fun, **kwargs)
+    options = {**ONCE_OPTIONS, **(kwargs.pop("compiler_options", None) or {})}
+    return jit(fun, compiler_options=options, **kwargs)

@@ -42,7 +42,7 @@ from jaxenvs.core.sharding import (
     under_fields,
     validate_batch,
 )
-from jaxenvs.core.xla import jit
+from jaxenvs.core.xla import jit, jit_once
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.run_config import ResolvedConfig, algorithm, seed_keys
 
@@ -123,7 +123,7 @@ def spread_programs(
     _, make_trainer = algorithm(resolved.algo)
     if "mesh" in inspect.signature(make_trainer).parameters:
         spread = make_trainer(env, resolved.agent, mesh=mesh)  # type: ignore[call-arg]
-        init_fn, chunk_fn = jit(jax.vmap(spread.init)), jit(jax.vmap(spread.chunk))
+        init_fn, chunk_fn = jit_once(jax.vmap(spread.init)), jit(jax.vmap(spread.chunk))
         return SpreadPrograms(spread, init_fn, chunk_fn, False)
     init_fn, chunk_fn = shard_trainer_fns(
         trainer, mesh, resolved.agent.num_envs, num_seeds=num_seeds
@@ -139,7 +139,7 @@ def seeds_programs(trainer: Trainer, mesh: Mesh) -> tuple[Any, Any]:
     split = PartitionSpec(mesh.axis_names[0])
     init = placement.shard_map_lean(jax.vmap(trainer.init), mesh, (split,), split)
     chunk = placement.shard_map_lean(jax.vmap(trainer.chunk), mesh, (split,), (split, split))
-    return jit(init), jit(chunk)
+    return jit_once(init), jit(chunk)
 
 
 def mesh_evaluator(
@@ -217,7 +217,7 @@ def shard_trainer_fns(
     state = jax.eval_shape(init, keys)
     state_sh = tree_shardings(state, mesh, env_axis_of, axis)
     metrics = jax.eval_shape(chunk, state)[1]
-    init_fn = jit(init, in_shardings=(replicated(mesh),), out_shardings=state_sh)
+    init_fn = jit_once(init, in_shardings=(replicated(mesh),), out_shardings=state_sh)
     chunk_fn = jit(
         chunk,
         in_shardings=(state_sh,),

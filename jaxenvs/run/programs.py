@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from jaxenvs.agents.base import Stages, Trainer
 from jaxenvs.core import Env
-from jaxenvs.core.xla import jit
+from jaxenvs.core.xla import jit, jit_once
 from jaxenvs.physics.figures import figures_for
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.placement import mesh_programs, run_mesh
@@ -200,7 +200,7 @@ def build_programs(
         trainer, init_fn, chunk_fn, compile_evaluate = mesh_programs(resolved, env, trainer, mesh)
         return Programs(env, trainer, init_fn, chunk_fn, BackgroundCompile(compile_evaluate))
     seeds = resolved.train.num_seeds
-    init_fn = jit(over_seeds(trainer.init, seeds))
+    init_fn = jit_once(over_seeds(trainer.init, seeds))
     if staged is None:
         staged = default_staged()
     if staged and trainer.stages is not None:

@@ -55,3 +55,35 @@ def test_a_batched_env_compiled_by_jaxenvs_jit_steps_like_plain_jit():
     ours = jaxenvs.machine.jit(roll)(jax.random.key(0))
     plain = jax.jit(roll)(jax.random.key(0))
     np.testing.assert_allclose(ours, plain, rtol=1e-5, atol=1e-6)
+
+
+def test_a_program_run_once_is_compiled_without_llvm_optimisations_on_a_cpu(monkeypatch):
+    seen = []
+    real = jax.jit
+    monkeypatch.setattr(jax, "jit", lambda fun, **kw: seen.append(kw) or real(fun, **kw))
+    x = jnp.arange(4.0)
+    np.testing.assert_array_equal(xla.jit_once(lambda v: v * 3)(x), np.arange(4.0) * 3)
+    mine = xla.jit_once(lambda v: v, compiler_options={"xla_backend_optimization_level": 1})
+    mine(x)
+    assert jax.default_backend() == "cpu"
+    assert seen[0]["compiler_options"] == {**xla.COMPILER_OPTIONS, **xla.ONCE_OPTIONS}
+    assert seen[1]["compiler_options"]["xla_backend_optimization_level"] == 1  # the caller's
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    xla.jit_once(lambda v: v)
+    assert seen[2].get("compiler_options") == (dict(xla.COMPILER_OPTIONS) or None)
+
+
+def test_a_runs_init_is_compiled_as_a_program_run_once(monkeypatch):
+    from jaxenvs.run import programs, run_config
+
+    once = []
+    monkeypatch.setattr(programs, "jit_once", lambda fun, **kw: once.append(fun) or xla.jit(fun))
+    programs.build_programs.cache_clear()
+    resolved = run_config.resolve_config("CartPole-v0", "ppo", agent_overrides={"num_envs": 4})
+    try:
+        built = programs.build_programs(resolved)
+    finally:
+        programs.build_programs.cache_clear()
+    assert len(once) == 1
+    state = built.init_fn(run_config.seed_keys(0, 1))
+    assert jax.tree.leaves(state)
