@@ -9,9 +9,12 @@ process) returns 500. Every time is the whole process's, from start to exit. The
 without video (cold, warm) closes each round. Rows: one per process; the record's ``extra``
 holds the medians over rounds and the ratios ours / SB3. ``--xla-defaults`` adds, after
 each of our commands, the same command with jaxenvs' XLA options emptied
-(``jaxenvs.core.xla.COMPILER_OPTIONS = {}``: XLA's own defaults), cold and warm
-(rows ``<which>_xla_defaults``). ``--sb3-defaults`` adds, after SB3's row, SB3's PPO with its own
-default hyperparameters (one env; row ``sb3_defaults``), timed the same way.
+(``jaxenvs.core.xla.COMPILER_OPTIONS`` and ``ONCE_OPTIONS`` set to ``{}``: XLA's own
+defaults), cold and warm (rows ``<which>_xla_defaults``); ``--optimised-init`` the same
+with only ``ONCE_OPTIONS`` emptied (the run's init compiled with LLVM's optimisations, as
+before :func:`jaxenvs.core.xla.jit_once`; rows ``<which>_optimised_init``).
+``--sb3-defaults`` adds, after SB3's row, SB3's PPO with its own default hyperparameters
+(one env; row ``sb3_defaults``), timed the same way.
 
 SB3's hyperparameters are RL Baselines3 Zoo's tuned ones for CartPole-v1 (8 envs,
 n_steps 32, batch 256, 20 epochs, gamma 0.98, GAE lambda 0.8, linearly decayed learning
@@ -45,17 +48,30 @@ EVAL_EPISODES = 20
 THRESHOLD = 500.0
 
 
-#: the command line with jaxenvs' XLA options emptied (XLA's defaults)
-_XLA_DEFAULTS = (
-    "import sys, jaxenvs.core.xla as x; x.COMPILER_OPTIONS = {}; "
-    "from jaxenvs.cli import main; sys.exit(main(sys.argv[1:]))"
-)
+#: the variants of our commands: a row suffix and what the command line sets in
+#: jaxenvs.core.xla (imported as ``x``) before it runs (None: ``python -m jaxenvs``)
+VARIANTS = {
+    "": None,
+    "_xla_defaults": "x.COMPILER_OPTIONS = {}; x.ONCE_OPTIONS = {}",
+    "_optimised_init": "x.ONCE_OPTIONS = {}",
+}
 
 
-def _run(args: list[str], out: Path, cache: str, xla_defaults: bool = False) -> dict[str, Any]:
+def _program(variant: str) -> list[str]:
+    setting = VARIANTS[variant]
+    if setting is None:
+        return ["-m", "jaxenvs"]
+    return [
+        "-c",
+        f"import sys, jaxenvs.core.xla as x; {setting}; "
+        "from jaxenvs.cli import main; sys.exit(main(sys.argv[1:]))",
+    ]
+
+
+def _run(args: list[str], out: Path, cache: str, variant: str = "") -> dict[str, Any]:
     env = {**os.environ, "JAXENVS_CACHE_DIR": cache}
     start = time.perf_counter()
-    program = ["-c", _XLA_DEFAULTS] if xla_defaults else ["-m", "jaxenvs"]
+    program = _program(variant)
     subprocess.run(
         [sys.executable, *program, *args, "--out", str(out), "--quiet"],
         check=True,
@@ -153,6 +169,9 @@ def main() -> None:
     parser.add_argument("--sb3-job", nargs=3, type=int, help=argparse.SUPPRESS)
     parser.add_argument("--xla-defaults", action="store_true", help="also with XLA's defaults")
     parser.add_argument(
+        "--optimised-init", action="store_true", help="also with the init compiled optimised"
+    )
+    parser.add_argument(
         "--sb3-defaults", action="store_true", help="also SB3 with its default hyperparameters"
     )
     parser.add_argument("--json", help=results_io.HELP)
@@ -163,12 +182,14 @@ def main() -> None:
     rows, loads = [], [_load()]
     for k in range(args.rounds):
         for name, command in COMMANDS:
-            for defaults in (False, True) if args.xla_defaults else (False,):
-                which = f"{name}_xla_defaults" if defaults else name
+            variants = [""] + ["_xla_defaults"] * args.xla_defaults
+            variants += ["_optimised_init"] * args.optimised_init
+            for variant in variants:
+                which = name + variant
                 with tempfile.TemporaryDirectory() as tmp:
                     cache = str(Path(tmp) / "cache")
                     for i in range(2):
-                        row = _run(command, Path(tmp) / f"run{i}", cache, defaults)
+                        row = _run(command, Path(tmp) / f"run{i}", cache, variant)
                         head = {"command": "jaxenvs " + " ".join(command), "which": which}
                         rows.append({**head, "run": i, **row, "round": k})
                         print(rows[-1], flush=True)
