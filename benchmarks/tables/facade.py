@@ -34,4 +34,5 @@ TABLES = {
     "facade-single-idle": Table(("facade_cpu2_single_idle",), facade),
     "facade-single-struct": Table(("facade_cpu2_single_struct",), facade),
     "facade-single-fast": Table(("facade_cpu2_single_fast",), facade),
+    "facade-single-dec02": Table(("facade_cpu2_single_dec02",), facade),
 }

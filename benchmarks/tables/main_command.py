@@ -12,6 +12,7 @@ def main_command(recs: list[Rec]) -> Cells:
         sb3 = r["which"].startswith("sb3")
         ret = r["eval_mean_return"]
         xla = ", XLA's defaults" if r["which"].endswith("_xla_defaults") else ""
+        xla = ", init compiled optimised" if r["which"].endswith("_optimised_init") else xla
         return [
             f"`{r['command']}`{xla}" if not sb3 else r["command"],
             str(r.get("round", 0)),
@@ -43,6 +44,10 @@ def main_command_ratios(recs: list[Rec], bars: tuple[str, str] = ("<= 0.25x", "<
         "main_xla_defaults_1": ("the main command with XLA's default emitters, warm", ""),
         "c_no_video_xla_defaults_0": ("`--physics c --no-video`, XLA's defaults, cold", ""),
         "c_no_video_xla_defaults_1": ("`--physics c --no-video`, XLA's defaults, warm", ""),
+        "main_optimised_init_0": ("the main command, its init compiled optimised, cold", ""),
+        "main_optimised_init_1": ("the main command, its init compiled optimised, warm", ""),
+        "c_no_video_optimised_init_0": ("`--physics c --no-video`, init optimised, cold", ""),
+        "c_no_video_optimised_init_1": ("`--physics c --no-video`, init optimised, warm", ""),
         "sb3_0": ("SB3 PPO, CartPole-v1 to a greedy 500", ""),
         "sb3_defaults_0": ("the same with SB3's default hyperparameters (one env)", ""),
     }
@@ -75,6 +80,10 @@ TABLES = {
     ),
     "main-command-ratios-evaluator-later-cpu2": Table(
         ("main_command_cpu2_evaluator_later",),
+        lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
+    ),
+    "main-command-ratios-init-once-cpu2": Table(
+        ("main_command_cpu2_init_once",),
         lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
     ),
 }
