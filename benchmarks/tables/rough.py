@@ -251,6 +251,8 @@ TABLES = {
     "rough-tracking-pit20": Table(("ppo_joystick_rough_seeds_pit20_h200",), rough_tracking),
     "rough-training-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_training),
     "rough-tracking-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_tracking),
+    "rough-training-clearance": Table(("ppo_joystick_rough_clearance_h200",), rough_training),
+    "rough-tracking-clearance": Table(("ppo_joystick_rough_clearance_h200",), rough_tracking),
     "rough-training-h100": Table(("ppo_joystick_rough_seed0_cut_h100",), rough_training),
     "rough-tracking-h100": Table(("ppo_joystick_rough_seed0_cut_h100",), rough_tracking),
 }

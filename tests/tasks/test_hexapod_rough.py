@@ -24,12 +24,10 @@ import pytest
 import jaxenvs
 from jaxenvs.config import ConfigError
 from jaxenvs.core import BatchedEnv
-from jaxenvs.robots.hexapod import FOOT_RADIUS
 from jaxenvs.run import results
 from jaxenvs.scenes import MAX_CONTACTS
 from jaxenvs.tasks.hexapod.rough import (
     SCAN_KEYS,
-    SWING_SPEED,
     HexapodJoystickRough,
     JoystickRoughConfig,
     RoughCarry,
@@ -286,52 +284,10 @@ def test_the_observation_is_blind(env) -> None:
     np.testing.assert_allclose(np.asarray(one.obs), np.asarray(obs[0]), atol=1e-6)  # no noise
 
 
-def test_feet_by_forward_kinematics_are_mujocos(env) -> None:
-    """``foot_centres`` from ``qpos`` alone is where MuJoCo puts the foot spheres."""
-    model, data = env.sim.mj_model, mujoco.MjData(env.sim.mj_model)
-    feet = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f) for f in env.robot.feet]
-    rng = np.random.default_rng(0)
-    for _ in range(5):
-        quat = rng.normal(size=4)
-        joints = rng.uniform(-1, 1, 18) * np.tile([0.46, 1.57, 1.57], 6)
-        data.qpos[:] = np.concatenate([rng.normal(size=3), quat / np.linalg.norm(quat), joints])
-        mujoco.mj_forward(model, data)
-        ours = env.robot.foot_centres(jnp.asarray(data.qpos, jnp.float32))
-        np.testing.assert_allclose(np.asarray(ours), data.geom_xpos[feet], atol=1e-5)
-
-
-def test_swing_clearance_weighs_moving_feet_against_the_height(env) -> None:
-    """Standing feet weigh nothing (1); one foot swept sideways on the ground costs its
-    squared miss of the height times tanh(speed / 0.5); lifted to the height it costs 0;
-    the term enters the reward only with ``clearance_weight``."""
-    s = jax.tree.map(lambda x: x[0], starts(env, [0], [FLAT]))
-    prev = s.data
-    h, sigma = 0.05, 0.01
-    assert float(env.swing_clearance(prev, prev, h, sigma)) == 1.0
-    # the first leg's hip turned: its foot sweeps sideways along the ground
-    dq = 0.1
-    data = prev.replace(qpos=prev.qpos.at[7].add(dq))
-    before, after = env.robot.foot_centres(prev.qpos), env.robot.foot_centres(data.qpos)
-    lift = float(after[0, 2]) - FOOT_RADIUS - float(env.ground(after[0, :2]))
-    speed = float(jnp.linalg.norm(after[0, :2] - before[0, :2])) / env.control_dt
-    want = np.exp(-((lift - h) ** 2) * np.tanh(speed / SWING_SPEED) / sigma)
-    got = float(env.swing_clearance(prev, data, h, sigma))
-    assert got < 1.0
-    np.testing.assert_allclose(got, want, rtol=1e-5)
-    np.testing.assert_allclose(float(env.swing_clearance(prev, data, lift, sigma)), 1.0)
-    plain = jaxenvs.make(ID, physics="c", **SMALL)
-    weighted = jaxenvs.make(ID, physics="c", **SMALL, clearance_weight=0.5)
-    args = (prev, data, jnp.zeros(18), s.extras, plain.default_params)
-    extra = weighted._reward(*args)[0] - plain._reward(*args)[0]
-    np.testing.assert_allclose(float(extra), 0.5 * got, rtol=1e-5)
-
-
 @pytest.mark.parametrize(
     "field, value",
     [
         ("cone", "conic"),
-        ("clearance_sigma", 0.0),
-        ("clearance_weight", -1.0),
         ("spawn_types", ("lava",)),
         ("max_init_level", 4),
         ("tile_size", 3.01),

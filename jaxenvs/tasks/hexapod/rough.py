@@ -71,7 +71,6 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import State
-from jaxenvs.robots.hexapod import FOOT_RADIUS
 from jaxenvs.scenes import HFIELD_CONTACTS, Ground, Marker, Scene
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, TerrainConfigError, generate
@@ -103,8 +102,6 @@ __all__ = [
 SCAN_OFFSETS = scan_grid(7, 7, 0.07)
 #: the scan's metric keys, one per point of :data:`SCAN_OFFSETS`
 SCAN_KEYS = tuple(f"scan_{i:02d}" for i in range(len(SCAN_OFFSETS)))
-#: the foot speed (m/s) at which a foot's clearance weighs tanh(1) (TerrainTask.swing_clearance)
-SWING_SPEED = 0.5
 #: folded into a finished episode's key for the draw of a level past the top
 _LEVEL_SALT = 0x6C76
 #: this config's name of each generator field it sets under another name
@@ -212,33 +209,17 @@ class JoystickRoughConfig(TerrainFields, JoystickConfig):
         ``tile_size`` from its spawn ...
       demote_fraction: ... else demote when it covered less than this fraction of the
         distance its commands asked for.
-      clearance_weight, clearance_height, clearance_sigma: a swing-foot clearance term
-        (0: none), ``clearance_weight * exp(-sum_i (h_i - clearance_height)^2 *
-        tanh(|v_i| / 0.5 m/s) / clearance_sigma)`` over the feet ``i``, ``h_i`` the
-        foot's lowest point above the ground under it (m) and ``v_i`` its horizontal
-        speed over the control step (:meth:`TerrainTask.swing_clearance`): feet that
-        move are drawn to the height, feet that stand are not (Isaac Lab's foot
-        clearance reward, on the ground under each foot).
     """
 
     promote_fraction: float = 0.5
     demote_fraction: float = 0.5
-    clearance_weight: float = 0.0
-    clearance_height: float = 0.05
-    clearance_sigma: float = 0.01
 
-    nonnegative: ClassVar[tuple[str, ...]] = (
-        *JoystickConfig.nonnegative,
-        "demote_fraction",
-        "clearance_weight",
-        "clearance_height",
-    )
+    nonnegative: ClassVar[tuple[str, ...]] = (*JoystickConfig.nonnegative, "demote_fraction")
 
     def validate(self) -> None:
         super().validate()
         self.validate_terrain()
         require(self.promote_fraction > 0, "promote_fraction", "must be > 0")
-        require(self.clearance_sigma > 0, "clearance_sigma", "must be > 0")
 
 
 @functools.lru_cache(maxsize=4)
@@ -377,21 +358,6 @@ class TerrainTask(HexapodTask[Any]):
         and the ``height`` metric read it)."""
         return pos[2] - self.ground(pos[:2])
 
-    def swing_clearance(
-        self, prev: mjx.Data, data: mjx.Data, height: float, sigma: float
-    ) -> jax.Array:
-        """``exp(-sum_i (h_i - height)^2 * tanh(|v_i| / SWING_SPEED) / sigma)`` over the
-        six feet: ``h_i`` the lowest point of foot ``i`` (its centre less
-        :data:`~jaxenvs.robots.hexapod.FOOT_RADIUS`) above the ground under it at the
-        step's end, ``v_i`` its horizontal speed over the step ``prev -> data`` (m/s).
-        1 when every moving foot is at ``height``; a standing foot weighs nothing."""
-        before = self.robot.foot_centres(prev.qpos)
-        after = self.robot.foot_centres(data.qpos)
-        lift = after[:, 2] - FOOT_RADIUS - self.ground(after[:, :2])
-        speed = jnp.linalg.norm(after[:, :2] - before[:, :2], axis=-1) / self.control_dt
-        miss = jnp.square(lift - height) * jnp.tanh(speed / SWING_SPEED)
-        return jnp.exp(-jnp.sum(miss) / sigma)
-
     def scan_metrics(self, data: mjx.Data, level: jax.Array) -> dict[str, jax.Array]:
         """``level`` (float) and the height scan under the body (:data:`SCAN_KEYS`: the
         ground minus the torso's height at :data:`SCAN_OFFSETS`, clipped to +-1 m)."""
@@ -481,13 +447,8 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         extras: JoystickExtras,
         params: JoystickParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
-        """The joystick's reward and metrics (its ``height`` above the ground), with the
-        swing-foot clearance term where ``clearance_weight`` is set, and ``level`` and
-        the height scan (:data:`SCAN_KEYS`) among the metrics."""
+        """The joystick's reward and metrics (its ``height`` above the ground), with
+        ``level`` and the height scan (:data:`SCAN_KEYS`)."""
         assert isinstance(extras, RoughExtras)
-        c = self.config
         reward, metrics = super()._reward(prev, data, action, extras, params)
-        if c.clearance_weight:
-            clear = self.swing_clearance(prev, data, c.clearance_height, c.clearance_sigma)
-            reward = reward + c.clearance_weight * clear
         return reward, metrics | self.scan_metrics(data, extras.level)
