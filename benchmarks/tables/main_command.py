@@ -13,6 +13,7 @@ def main_command(recs: list[Rec]) -> Cells:
         ret = r["eval_mean_return"]
         xla = ", XLA's defaults" if r["which"].endswith("_xla_defaults") else ""
         xla = ", init compiled optimised" if r["which"].endswith("_optimised_init") else xla
+        xla = ", chunk at -O2" if r["which"].endswith("_o2_chunk") else xla
         return [
             f"`{r['command']}`{xla}" if not sb3 else r["command"],
             str(r.get("round", 0)),
@@ -48,6 +49,10 @@ def main_command_ratios(recs: list[Rec], bars: tuple[str, str] = ("<= 0.25x", "<
         "main_optimised_init_1": ("the main command, its init compiled optimised, warm", ""),
         "c_no_video_optimised_init_0": ("`--physics c --no-video`, init optimised, cold", ""),
         "c_no_video_optimised_init_1": ("`--physics c --no-video`, init optimised, warm", ""),
+        "main_o2_chunk_0": ("the main command, its chunk at -O2, cold", ""),
+        "main_o2_chunk_1": ("the main command, its chunk at -O2, warm", ""),
+        "c_no_video_o2_chunk_0": ("`--physics c --no-video`, chunk at -O2, cold", ""),
+        "c_no_video_o2_chunk_1": ("`--physics c --no-video`, chunk at -O2, warm", ""),
         "sb3_0": ("SB3 PPO, CartPole-v1 to a greedy 500", ""),
         "sb3_defaults_0": ("the same with SB3's default hyperparameters (one env)", ""),
     }
