@@ -9,13 +9,10 @@ process) returns 500. Every time is the whole process's, from start to exit. The
 without video (cold, warm) closes each round. Rows: one per process; the record's ``extra``
 holds the medians over rounds and the ratios ours / SB3. ``--xla-defaults`` adds, after
 each of our commands, the same command with jaxenvs' XLA options emptied
-(``jaxenvs.core.xla.COMPILER_OPTIONS``, ``ONCE_OPTIONS`` and ``C_ENGINE_OPTIONS`` set to
-``{}``: XLA's own defaults), cold and warm (rows ``<which>_xla_defaults``);
-``--optimised-init`` the same with only ``ONCE_OPTIONS`` emptied (the run's init compiled
-with LLVM's optimisations, as before :func:`jaxenvs.core.xla.jit_once`; rows
-``<which>_optimised_init``); ``--o2-chunk`` with only ``C_ENGINE_OPTIONS`` emptied (the
-chunk around the C engine at XLA's default -O2, as before
-:func:`jaxenvs.core.xla.jit_c_engine`; rows ``<which>_o2_chunk``).
+(``jaxenvs.core.xla.COMPILER_OPTIONS`` and ``ONCE_OPTIONS`` set to ``{}``: XLA's own
+defaults), cold and warm (rows ``<which>_xla_defaults``); ``--optimised-init`` the same
+with only ``ONCE_OPTIONS`` emptied (the run's init compiled with LLVM's optimisations, as
+before :func:`jaxenvs.core.xla.jit_once`; rows ``<which>_optimised_init``).
 ``--sb3-defaults`` adds, after SB3's row, SB3's PPO with its own default hyperparameters
 (one env; row ``sb3_defaults``), timed the same way.
 
@@ -55,9 +52,8 @@ THRESHOLD = 500.0
 #: jaxenvs.core.xla (imported as ``x``) before it runs (None: ``python -m jaxenvs``)
 VARIANTS = {
     "": None,
-    "_xla_defaults": "x.COMPILER_OPTIONS = x.ONCE_OPTIONS = x.C_ENGINE_OPTIONS = {}",
+    "_xla_defaults": "x.COMPILER_OPTIONS = {}; x.ONCE_OPTIONS = {}",
     "_optimised_init": "x.ONCE_OPTIONS = {}",
-    "_o2_chunk": "x.C_ENGINE_OPTIONS = {}",
 }
 
 
@@ -176,9 +172,6 @@ def main() -> None:
         "--optimised-init", action="store_true", help="also with the init compiled optimised"
     )
     parser.add_argument(
-        "--o2-chunk", action="store_true", help="also with the C engine's chunk at -O2"
-    )
-    parser.add_argument(
         "--sb3-defaults", action="store_true", help="also SB3 with its default hyperparameters"
     )
     parser.add_argument("--json", help=results_io.HELP)
@@ -191,7 +184,6 @@ def main() -> None:
         for name, command in COMMANDS:
             variants = [""] + ["_xla_defaults"] * args.xla_defaults
             variants += ["_optimised_init"] * args.optimised_init
-            variants += ["_o2_chunk"] * args.o2_chunk
             for variant in variants:
                 which = name + variant
                 with tempfile.TemporaryDirectory() as tmp:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import statistics
+
 from .common import Cells, Rec, Row, Table, each_row, secs
 
 
@@ -49,8 +51,8 @@ def main_command_ratios(recs: list[Rec], bars: tuple[str, str] = ("<= 0.25x", "<
         "main_optimised_init_1": ("the main command, its init compiled optimised, warm", ""),
         "c_no_video_optimised_init_0": ("`--physics c --no-video`, init optimised, cold", ""),
         "c_no_video_optimised_init_1": ("`--physics c --no-video`, init optimised, warm", ""),
-        "main_o2_chunk_0": ("the main command, its chunk at -O2, cold", ""),
-        "main_o2_chunk_1": ("the main command, its chunk at -O2, warm", ""),
+        "main_o2_chunk_0": ("the main command, its chunk at -O2 (the default), cold", ""),
+        "main_o2_chunk_1": ("the main command, its chunk at -O2 (the default), warm", ""),
         "c_no_video_o2_chunk_0": ("`--physics c --no-video`, chunk at -O2, cold", ""),
         "c_no_video_o2_chunk_1": ("`--physics c --no-video`, chunk at -O2, warm", ""),
         "sb3_0": ("SB3 PPO, CartPole-v1 to a greedy 500", ""),
@@ -65,6 +67,40 @@ def main_command_ratios(recs: list[Rec], bars: tuple[str, str] = ("<= 0.25x", "<
                 row.append(f"{med[key] / sb3_defaults:.2f}x")
             rows.append([*row, bar])
     return rows
+
+
+def chunk_options(recs: list[Rec]) -> Cells:
+    """Per task and engine, the chunk's compile and run at -O2 and -O1: each level's median
+    over the rounds (and every round), -O1's over -O2's."""
+    cells = [["task", "engine", "level", "compile", "s a chunk", "compile / -O2", "chunk / -O2"]]
+    for rec in recs:
+        found: dict[tuple[str, str], dict[str, list[Row]]] = {}
+        for r in rec["rows"]:
+            found.setdefault((r["env_id"], r["physics"]), {}).setdefault(r["level"], []).append(r)
+        for (task, physics), levels in found.items():
+            med = {
+                lv: (
+                    statistics.median(r["compile_s"] for r in rs),
+                    statistics.median(r["seconds_per_chunk"] for r in rs),
+                )
+                for lv, rs in levels.items()
+            }
+            for lv, rs in levels.items():
+                each = ", ".join(f"{r['compile_s']:.2f}" for r in rs)
+                runs = ", ".join(f"{r['seconds_per_chunk']:.3f}" for r in rs)
+                base = med.get("-O2", med[lv])
+                cells.append(
+                    [
+                        task,
+                        physics,
+                        lv,
+                        f"{med[lv][0]:.2f} s ({each})",
+                        f"{med[lv][1]:.3f} s ({runs})",
+                        f"{med[lv][0] / base[0]:.2f}x",
+                        f"{med[lv][1] / base[1]:.2f}x",
+                    ]
+                )
+    return cells
 
 
 TABLES = {
@@ -85,6 +121,11 @@ TABLES = {
     ),
     "main-command-ratios-evaluator-later-cpu2": Table(
         ("main_command_cpu2_evaluator_later",),
+        lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
+    ),
+    "chunk-options-cpu2": Table(("chunk_options_cpu2",), chunk_options),
+    "main-command-ratios-o1-chunk-cpu2": Table(
+        ("main_command_cpu2_o1_chunk",),
         lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
     ),
     "main-command-ratios-init-once-cpu2": Table(

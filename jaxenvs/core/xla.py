@@ -1,6 +1,5 @@
 """How jaxenvs asks XLA to compile its programs: :func:`jit`, ``jax.jit`` with
-:data:`COMPILER_OPTIONS`; :func:`jit_once` for a program a run calls once and
-:func:`jit_c_engine` for one whose physics is MuJoCo's C engine.
+:data:`COMPILER_OPTIONS`, and :func:`jit_once` for a program a run calls once.
 
 On a CPU, XLA's MLIR fusion emitters (its default) cost more compile time and memory on
 our programs than its LLVM loop emitters, for the same or better speed: the options pick
@@ -26,14 +25,6 @@ machine the main job's cold run ended 1.2 s sooner at the median of five (the fi
 benchmarks/RESULTS.md, "Init compiled without LLVM's optimisations"). The init's results
 differ from an optimised compile's in the last bits of its floats, so a run's numbers are
 those of another, equally valid start.
-
-A run's training chunk whose physics is MuJoCo's C engine (a native call inside the
-program) is compiled on a CPU at LLVM's -O1 (:data:`C_ENGINE_OPTIONS`): XLA compiles only
-the policy and the learning around the call, and those chunks ran as fast as at -O2 while
-compiling in 20-55% less time (CartPole-v0, Reacher-v0, HexapodJoystick-v0 on 2 cores:
-benchmarks/RESULTS.md, "The chunk around the C engine at -O1"). Under MJX the physics is
-XLA's code, and Reacher-v0's chunk ran 11% slower at -O1, so MJX's programs keep XLA's
-default level.
 """
 
 from __future__ import annotations
@@ -50,8 +41,6 @@ COMPILER_OPTIONS: Mapping[str, Any] = MappingProxyType(
 )
 #: what :func:`jit_once` adds on a CPU: LLVM at -O0
 ONCE_OPTIONS: Mapping[str, Any] = MappingProxyType({"xla_backend_optimization_level": 0})
-#: what :func:`jit_c_engine` adds on a CPU: LLVM at -O1
-C_ENGINE_OPTIONS: Mapping[str, Any] = MappingProxyType({"xla_backend_optimization_level": 1})
 
 
 def jit(fun: Callable[..., Any], **kwargs: Any) -> Any:
@@ -65,20 +54,7 @@ def jit(fun: Callable[..., Any], **kwargs: Any) -> Any:
 def jit_once(fun: Callable[..., Any], **kwargs: Any) -> Any:
     """:func:`jit` for a program a run calls once: where JAX's default backend is a CPU,
     compiled with :data:`ONCE_OPTIONS` too (elsewhere exactly :func:`jit`)."""
-    return _on_cpu(ONCE_OPTIONS, fun, kwargs)
-
-
-def jit_c_engine(fun: Callable[..., Any], physics: str, **kwargs: Any) -> Any:
-    """:func:`jit` for a program that steps ``physics``: where that is MuJoCo's C engine
-    (``"c"``) and JAX's default backend a CPU, compiled with :data:`C_ENGINE_OPTIONS` too
-    (elsewhere exactly :func:`jit`)."""
-    return _on_cpu(C_ENGINE_OPTIONS if physics == "c" else {}, fun, kwargs)
-
-
-def _on_cpu(extra: Mapping[str, Any], fun: Callable[..., Any], kwargs: dict[str, Any]) -> Any:
-    """``jit(fun, **kwargs)`` with ``extra`` options added where the backend is a CPU (the
-    caller's ``compiler_options`` win where both set one)."""
-    if not extra or jax.default_backend() != "cpu":
+    if jax.default_backend() != "cpu":
         return jit(fun, **kwargs)
-    options = {**extra, **(kwargs.pop("compiler_options", None) or {})}
+    options = {**ONCE_OPTIONS, **(kwargs.pop("compiler_options", None) or {})}
     return jit(fun, compiler_options=options, **kwargs)

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from jaxenvs.agents.base import Stages, Trainer
 from jaxenvs.core import Env
-from jaxenvs.core.xla import jit, jit_c_engine, jit_once
+from jaxenvs.core.xla import jit, jit_once
 from jaxenvs.physics.figures import figures_for
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.placement import mesh_programs, run_mesh
@@ -206,7 +206,7 @@ def build_programs(
     if staged and trainer.stages is not None:
         chunk_fn = StagedChunk(trainer.stages, seeds)
     else:
-        chunk_fn = jit_c_engine(over_seeds(trainer.chunk, seeds), env.physics)
+        chunk_fn = jit(over_seeds(trainer.chunk, seeds))
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
     keys = seed_keys(resolved.train.seed, seeds)
     key_shape = jax.eval_shape(lambda: eval_key(0))

@@ -8,7 +8,6 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-import pytest
 
 import jaxenvs
 import jaxenvs.machine
@@ -74,33 +73,17 @@ def test_a_program_run_once_is_compiled_without_llvm_optimisations_on_a_cpu(monk
     assert seen[2].get("compiler_options") == (dict(xla.COMPILER_OPTIONS) or None)
 
 
-def test_a_program_around_the_c_engine_is_compiled_at_o1_on_a_cpu(monkeypatch):
-    seen = []
-    real = jax.jit
-    monkeypatch.setattr(jax, "jit", lambda fun, **kw: seen.append(kw) or real(fun, **kw))
-    x = jnp.arange(4.0)
-    np.testing.assert_array_equal(xla.jit_c_engine(lambda v: v + 2, "c")(x), np.arange(4.0) + 2)
-    xla.jit_c_engine(lambda v: v, "mjx")
-    assert seen[0]["compiler_options"] == {**xla.COMPILER_OPTIONS, **xla.C_ENGINE_OPTIONS}
-    assert seen[1].get("compiler_options") == (dict(xla.COMPILER_OPTIONS) or None)
-
-
-@pytest.mark.parametrize("physics", ["c", "mjx"])
-def test_a_runs_init_and_chunk_are_compiled_for_what_they_do(monkeypatch, physics):
+def test_a_runs_init_is_compiled_as_a_program_run_once(monkeypatch):
     from jaxenvs.run import programs, run_config
 
-    once, around = [], []
+    once = []
     monkeypatch.setattr(programs, "jit_once", lambda fun, **kw: once.append(fun) or xla.jit(fun))
-    monkeypatch.setattr(
-        programs, "jit_c_engine", lambda fun, p, **kw: around.append(p) or xla.jit(fun)
-    )
     programs.build_programs.cache_clear()
     resolved = run_config.resolve_config("CartPole-v0", "ppo", agent_overrides={"num_envs": 4})
-    resolved = run_config.with_physics(resolved, physics)
     try:
-        built = programs.build_programs(resolved, staged=False)
+        built = programs.build_programs(resolved)
     finally:
         programs.build_programs.cache_clear()
-    assert len(once) == 1 and around == [physics]
+    assert len(once) == 1
     state = built.init_fn(run_config.seed_keys(0, 1))
     assert jax.tree.leaves(state)
