@@ -15,7 +15,7 @@ def main_command(recs: list[Rec]) -> Cells:
         ret = r["eval_mean_return"]
         xla = ", XLA's defaults" if r["which"].endswith("_xla_defaults") else ""
         xla = ", init compiled optimised" if r["which"].endswith("_optimised_init") else xla
-        xla = ", chunk at -O2" if r["which"].endswith("_o2_chunk") else xla
+        xla = ", chunk at XLA's default level" if r["which"].endswith("_o2_chunk") else xla
         return [
             f"`{r['command']}`{xla}" if not sb3 else r["command"],
             str(r.get("round", 0)),
@@ -51,10 +51,12 @@ def main_command_ratios(recs: list[Rec], bars: tuple[str, str] = ("<= 0.25x", "<
         "main_optimised_init_1": ("the main command, its init compiled optimised, warm", ""),
         "c_no_video_optimised_init_0": ("`--physics c --no-video`, init optimised, cold", ""),
         "c_no_video_optimised_init_1": ("`--physics c --no-video`, init optimised, warm", ""),
-        "main_o2_chunk_0": ("the main command, its chunk at -O2 (the default), cold", ""),
-        "main_o2_chunk_1": ("the main command, its chunk at -O2 (the default), warm", ""),
-        "c_no_video_o2_chunk_0": ("`--physics c --no-video`, chunk at -O2, cold", ""),
-        "c_no_video_o2_chunk_1": ("`--physics c --no-video`, chunk at -O2, warm", ""),
+        # rows of main_command_cpu2_o1_chunk.json, whose arm (--o2-chunk) the benchmark
+        # had only while the chunk around the C engine was compiled at -O1 (reverted)
+        "main_o2_chunk_0": ("the main command, its chunk at XLA's default level, cold", ""),
+        "main_o2_chunk_1": ("the main command, its chunk at XLA's default level, warm", ""),
+        "c_no_video_o2_chunk_0": ("`--physics c --no-video`, chunk at the default, cold", ""),
+        "c_no_video_o2_chunk_1": ("`--physics c --no-video`, chunk at the default, warm", ""),
         "sb3_0": ("SB3 PPO, CartPole-v1 to a greedy 500", ""),
         "sb3_defaults_0": ("the same with SB3's default hyperparameters (one env)", ""),
     }
@@ -69,14 +71,21 @@ def main_command_ratios(recs: list[Rec], bars: tuple[str, str] = ("<= 0.25x", "<
     return rows
 
 
+#: a level's label in the chunk table (the first result file called XLA's default "-O2"; it
+#: is level 3)
+_LEVEL = {"-O2": "default (3)", "default": "default (3)", "-O1": "1"}
+
+
 def chunk_options(recs: list[Rec]) -> Cells:
-    """Per task and engine, the chunk's compile and run at -O2 and -O1: each level's median
-    over the rounds (and every round), -O1's over -O2's."""
-    cells = [["task", "engine", "level", "compile", "s a chunk", "compile / -O2", "chunk / -O2"]]
+    """Per task and engine, the chunk's compile and run at XLA's default backend level and
+    at 1: each level's median over the rounds (and every round), over the default's."""
+    head = ["task", "engine", "level", "compile", "s a chunk", "compile / default"]
+    cells = [[*head, "chunk / default"]]
     for rec in recs:
         found: dict[tuple[str, str], dict[str, list[Row]]] = {}
         for r in rec["rows"]:
-            found.setdefault((r["env_id"], r["physics"]), {}).setdefault(r["level"], []).append(r)
+            level = _LEVEL[r["level"]]
+            found.setdefault((r["env_id"], r["physics"]), {}).setdefault(level, []).append(r)
         for (task, physics), levels in found.items():
             med = {
                 lv: (
@@ -85,10 +94,10 @@ def chunk_options(recs: list[Rec]) -> Cells:
                 )
                 for lv, rs in levels.items()
             }
+            base = med["default (3)"]
             for lv, rs in levels.items():
                 each = ", ".join(f"{r['compile_s']:.2f}" for r in rs)
                 runs = ", ".join(f"{r['seconds_per_chunk']:.3f}" for r in rs)
-                base = med.get("-O2", med[lv])
                 cells.append(
                     [
                         task,

@@ -21,10 +21,13 @@ pass ``compiler_options=dict(COMPILER_OPTIONS)``) to get the same programs::
 A program that runs once per run (a run's init: the networks' initialisers and the first
 reset) is compiled on a CPU with LLVM's optimisations off as well (:data:`ONCE_OPTIONS`):
 its compile is on the critical path of every cold run and its run is not. On the 2-core
-machine the main job's cold run ended 1.2 s sooner at the median of five (the figures in
-benchmarks/RESULTS.md, "Init compiled without LLVM's optimisations"). The init's results
-differ from an optimised compile's in the last bits of its floats, so a run's numbers are
-those of another, equally valid start.
+machine init's compile went from 1.4 s to 0.3 s; the main job's cold run ended 1.2 s
+sooner at the median of five rounds in one process each, and 0.7 s (0.3 s between the
+medians) in the benchmark's five rounds against SB3 (benchmarks/RESULTS.md, "Init compiled
+without LLVM's optimisations"). The init's results differ from an optimised compile's in
+the last bits of its floats, so a run's numbers are those of another, equally valid start.
+The level is the program's own option, so it wins over an ``XLA_FLAGS`` setting of
+``--xla_backend_optimization_level`` for the init.
 """
 
 from __future__ import annotations
@@ -52,8 +55,9 @@ def jit(fun: Callable[..., Any], **kwargs: Any) -> Any:
 
 
 def jit_once(fun: Callable[..., Any], **kwargs: Any) -> Any:
-    """:func:`jit` for a program a run calls once: where JAX's default backend is a CPU,
-    compiled with :data:`ONCE_OPTIONS` too (elsewhere exactly :func:`jit`)."""
+    """:func:`jit` for a program a run calls once: where JAX's default backend is a CPU
+    when it is called (the program is wrapped, not yet compiled), compiled with
+    :data:`ONCE_OPTIONS` too (elsewhere exactly :func:`jit`)."""
     if jax.default_backend() != "cpu":
         return jit(fun, **kwargs)
     options = {**ONCE_OPTIONS, **(kwargs.pop("compiler_options", None) or {})}

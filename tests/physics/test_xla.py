@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -58,32 +59,67 @@ def test_a_batched_env_compiled_by_jaxenvs_jit_steps_like_plain_jit():
 
 
 def test_a_program_run_once_is_compiled_without_llvm_optimisations_on_a_cpu(monkeypatch):
-    seen = []
-    real = jax.jit
-    monkeypatch.setattr(jax, "jit", lambda fun, **kw: seen.append(kw) or real(fun, **kw))
     x = jnp.arange(4.0)
     np.testing.assert_array_equal(xla.jit_once(lambda v: v * 3)(x), np.arange(4.0) * 3)
-    mine = xla.jit_once(lambda v: v, compiler_options={"xla_backend_optimization_level": 1})
-    mine(x)
-    assert jax.default_backend() == "cpu"
-    assert seen[0]["compiler_options"] == {**xla.COMPILER_OPTIONS, **xla.ONCE_OPTIONS}
-    assert seen[1]["compiler_options"]["xla_backend_optimization_level"] == 1  # the caller's
-    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    seen = []
+    real = xla.jit
+    monkeypatch.setattr(xla, "jit", lambda fun, **kw: seen.append(kw) or real(fun, **kw))
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     xla.jit_once(lambda v: v)
-    assert seen[2].get("compiler_options") == (dict(xla.COMPILER_OPTIONS) or None)
+    xla.jit_once(lambda v: v, compiler_options={"xla_backend_optimization_level": 1}, inline=True)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    xla.jit_once(lambda v: v, inline=True)
+    assert seen[0] == {"compiler_options": dict(xla.ONCE_OPTIONS)}
+    assert seen[1] == {"compiler_options": {"xla_backend_optimization_level": 1}, "inline": True}
+    assert seen[2] == {"inline": True}  # elsewhere exactly jit
+
+
+def _recording(made: list) -> Any:
+    """A stand-in for ``jit_once`` that records what it makes."""
+
+    def fake(fun: Any, **kwargs: Any) -> Any:
+        made.append(xla.jit(fun, **kwargs))
+        return made[-1]
+
+    return fake
 
 
 def test_a_runs_init_is_compiled_as_a_program_run_once(monkeypatch):
     from jaxenvs.run import programs, run_config
 
-    once = []
-    monkeypatch.setattr(programs, "jit_once", lambda fun, **kw: once.append(fun) or xla.jit(fun))
+    made: list = []
+    monkeypatch.setattr(programs, "jit_once", _recording(made))
     programs.build_programs.cache_clear()
     resolved = run_config.resolve_config("CartPole-v0", "ppo", agent_overrides={"num_envs": 4})
     try:
-        built = programs.build_programs(resolved)
+        built = programs.build_programs(resolved, devices=1, staged=False)
     finally:
         programs.build_programs.cache_clear()
-    assert len(once) == 1
-    state = built.init_fn(run_config.seed_keys(0, 1))
-    assert jax.tree.leaves(state)
+    assert len(made) == 1 and built.init_fn is made[0]
+    assert built.chunk_fn is not made[0]
+    assert jax.tree.leaves(built.init_fn(run_config.seed_keys(0, 1)))
+
+
+_MESH_INITS = """
+import sys
+from jaxenvs.run import placement, programs, run_config
+sys.path.insert(0, sys.argv[1])
+from test_xla import _recording
+made = []
+placement.jit_once = _recording(made)
+for algo, seeds in (("ppo", 1), ("ppo", 2), ("qlearning", 1)):
+    resolved = run_config.resolve_config(
+        "CartPole-v0", algo, agent_overrides={"num_envs": 4}, train_overrides={"num_seeds": seeds}
+    )
+    built = programs.build_programs(resolved, devices=2)
+    assert built.init_fn is made[-1], (algo, seeds)
+assert len(made) == 3, made
+"""
+
+
+def test_a_runs_init_over_host_devices_is_compiled_as_a_program_run_once():
+    """Every layout of a run over several devices (the PPO trainer's own mesh, seeds
+    over devices, a sharded trainer) compiles its init with ``jit_once``."""
+    from host_devices import run_with_devices
+
+    run_with_devices(2, _MESH_INITS, [str(Path(__file__).parent)])
