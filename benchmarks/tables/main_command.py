@@ -76,6 +76,12 @@ def main_command_ratios(recs: list[Rec], bars: tuple[str, str] = ("<= 0.25x", "<
 _LEVEL = {"-O2": "default (3)", "default": "default (3)", "-O1": "1"}
 
 
+def fair_peer_ratios(recs: list[Rec]) -> Cells:
+    """:func:`main_command_ratios` against the fair peer's targets (cold <= 1.0x, warm <=
+    0.5x)."""
+    return main_command_ratios(recs, ("<= 1.0x", "<= 0.5x"))
+
+
 def chunk_options(recs: list[Rec]) -> Cells:
     """Per task and engine, the chunk's compile and run at XLA's default backend level and
     at 1: each level's median over the rounds (and every round), over the default's."""
@@ -123,22 +129,22 @@ TABLES = {
     "main-command-ratios-sb3-defaults-cpu2": Table(
         ("main_command_cpu2_sb3_defaults",), main_command_ratios
     ),
-    # against the fair peer, with the later targets (cold <= 1.0x, warm <= 0.5x)
+    # against the fair peer, with the later targets
     "main-command-ratios-worker-cpu2": Table(
         ("main_command_cpu2_worker",),
-        lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
+        fair_peer_ratios,
     ),
     "main-command-ratios-evaluator-later-cpu2": Table(
         ("main_command_cpu2_evaluator_later",),
-        lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
+        fair_peer_ratios,
     ),
     "chunk-options-cpu2": Table(("chunk_options_cpu2",), chunk_options),
     "main-command-ratios-o1-chunk-cpu2": Table(
         ("main_command_cpu2_o1_chunk",),
-        lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
+        fair_peer_ratios,
     ),
     "main-command-ratios-init-once-cpu2": Table(
         ("main_command_cpu2_init_once",),
-        lambda recs: main_command_ratios(recs, ("<= 1.0x", "<= 0.5x")),
+        fair_peer_ratios,
     ),
 }

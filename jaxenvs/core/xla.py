@@ -58,7 +58,6 @@ def jit_once(fun: Callable[..., Any], **kwargs: Any) -> Any:
     """:func:`jit` for a program a run calls once: where JAX's default backend is a CPU
     when it is called (the program is wrapped, not yet compiled), compiled with
     :data:`ONCE_OPTIONS` too (elsewhere exactly :func:`jit`)."""
-    if jax.default_backend() != "cpu":
-        return jit(fun, **kwargs)
-    options = {**ONCE_OPTIONS, **(kwargs.pop("compiler_options", None) or {})}
-    return jit(fun, compiler_options=options, **kwargs)
+    if jax.default_backend() == "cpu":
+        kwargs["compiler_options"] = {**ONCE_OPTIONS, **(kwargs.get("compiler_options") or {})}
+    return jit(fun, **kwargs)
