@@ -12,11 +12,7 @@ each of our commands, the same command with jaxenvs' XLA options emptied
 (``jaxenvs.core.xla.COMPILER_OPTIONS`` and ``ONCE_OPTIONS`` set to ``{}``: XLA's own
 defaults), cold and warm (rows ``<which>_xla_defaults``); ``--optimised-init`` the same
 with only ``ONCE_OPTIONS`` emptied (the run's init compiled with LLVM's optimisations, as
-before :func:`jaxenvs.core.xla.jit_once`; rows ``<which>_optimised_init``);
-``--optimised-evaluator`` the same with the run's evaluator compiled optimised (as before
-:func:`jaxenvs.run.evaluation.evaluator_jit`; rows ``<which>_optimised_evaluator``). With
-variants, odd rounds run them in the reverse order (the first process of a round tends
-to be the slower one on a shared machine).
+before :func:`jaxenvs.core.xla.jit_once`; rows ``<which>_optimised_init``).
 ``--sb3-defaults`` adds, after SB3's row, SB3's PPO with its own default hyperparameters
 (one env; row ``sb3_defaults``), timed the same way.
 
@@ -58,7 +54,6 @@ VARIANTS = {
     "": None,
     "_xla_defaults": "x.COMPILER_OPTIONS = {}; x.ONCE_OPTIONS = {}",
     "_optimised_init": "x.ONCE_OPTIONS = {}",
-    "_optimised_evaluator": "import jaxenvs.run.programs as p; p.evaluator_jit = lambda *a: x.jit",
 }
 
 
@@ -177,11 +172,6 @@ def main() -> None:
         "--optimised-init", action="store_true", help="also with the init compiled optimised"
     )
     parser.add_argument(
-        "--optimised-evaluator",
-        action="store_true",
-        help="also with the evaluator compiled optimised",
-    )
-    parser.add_argument(
         "--sb3-defaults", action="store_true", help="also SB3 with its default hyperparameters"
     )
     parser.add_argument("--json", help=results_io.HELP)
@@ -194,9 +184,6 @@ def main() -> None:
         for name, command in COMMANDS:
             variants = [""] + ["_xla_defaults"] * args.xla_defaults
             variants += ["_optimised_init"] * args.optimised_init
-            variants += ["_optimised_evaluator"] * args.optimised_evaluator
-            if k % 2:
-                variants.reverse()
             for variant in variants:
                 which = name + variant
                 with tempfile.TemporaryDirectory() as tmp:

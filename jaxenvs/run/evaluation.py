@@ -2,7 +2,7 @@
 
 :func:`make_evaluator` is what the end-of-run (and ``eval_every``) evaluation of
 :func:`jaxenvs.run.runner.train` and :func:`jaxenvs.run.restore.evaluate_run` run;
-:func:`eval_key` the key of the final evaluation; :func:`evaluator_jit` how a run compiles it.
+:func:`eval_key` the key of the final evaluation.
 """
 
 from __future__ import annotations
@@ -14,7 +14,6 @@ import jax
 import jax.numpy as jnp
 
 from jaxenvs.core import Env
-from jaxenvs.core.xla import jit, jit_once
 
 PyTree = Any
 
@@ -57,19 +56,6 @@ def make_evaluator(
         return ret, traj, length[0]
 
     return evaluate
-
-
-def evaluator_jit(eval_every: int, physics: str) -> Callable[..., Any]:
-    """How a run's evaluator is compiled: :func:`~jaxenvs.core.xla.jit_once` when the run
-    evaluates only at its end (``eval_every`` 0) and its env steps in MuJoCo's C engine
-    (``physics`` ``"c"``), :func:`~jaxenvs.core.xla.jit` otherwise. On a CPU the end-only
-    evaluator compiles while the chunks run, sharing the machine with them; around the C
-    engine (a native call) XLA compiles only the policy and the bookkeeping, and at -O0
-    its compile took 0.2-0.6 s rather than 1.2-1.8 s on two cores (CartPole's, Reacher's
-    and the walker's) and its one run 0.01-0.2 s longer. MJX's physics at -O0 runs
-    slower by more than the compile saves (the walker's evaluation: 7.6 s of compile
-    saved, 19 s of run lost)."""
-    return jit_once if eval_every == 0 and physics == "c" else jit
 
 
 def eval_key(seed: int) -> jax.Array:

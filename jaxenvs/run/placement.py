@@ -43,7 +43,7 @@ from jaxenvs.core.sharding import (
     validate_batch,
 )
 from jaxenvs.core.xla import jit, jit_once
-from jaxenvs.run.evaluation import eval_key, evaluator_jit, make_evaluator
+from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.run_config import ResolvedConfig, algorithm, seed_keys
 
 PyTree = Any
@@ -148,15 +148,12 @@ def mesh_evaluator(
     key: jax.Array,
     mesh: Mesh,
     seeds_split: bool,
-    compile_with: Callable[..., Any] = jit,
 ) -> Callable[[], Callable[[PyTree, jax.Array], Any]]:
     """A function that compiles ``evaluator`` ``vmap``-ed over seeds on ``mesh`` and
     returns it as ``evaluate(params, key)``: the seeds' parameters split over the mesh
     (``seeds_split``, each device evaluating its own seeds) or replicated (every device
     runs the same episodes, and every process of a run over several hosts holds the
-    result). ``params_shape`` gives the parameters' structure, ``key`` the key's;
-    ``compile_with`` is the jit it is compiled with
-    (:func:`~jaxenvs.run.evaluation.evaluator_jit`)."""
+    result). ``params_shape`` gives the parameters' structure, ``key`` the key's."""
     whole = replicated(mesh)
     where = NamedSharding(mesh, PartitionSpec(mesh.axis_names[0])) if seeds_split else whole
     impl = jax.random.key_impl(key)
@@ -165,7 +162,7 @@ def mesh_evaluator(
         k = jax.random.wrap_key_data(key_data, impl=impl)
         return jax.vmap(evaluator, in_axes=(0, None))(params, k)
 
-    fn = compile_with(run, in_shardings=(where, whole), out_shardings=where)
+    fn = jit(run, in_shardings=(where, whole), out_shardings=where)
     data_shape = jax.eval_shape(jax.random.key_data, key)
 
     def compile_evaluate() -> Callable[[PyTree, jax.Array], Any]:
@@ -240,11 +237,6 @@ def mesh_programs(
     params_shape = jax.eval_shape(jax.vmap(spread.trainer.policy_params), state)
     evaluator = make_evaluator(env, spread.trainer.act, resolved.train.eval_episodes)
     compile_evaluate = mesh_evaluator(
-        evaluator,
-        params_shape,
-        eval_key(0),
-        mesh,
-        spread.seeds_split,
-        evaluator_jit(resolved.train.eval_every, env.physics),
+        evaluator, params_shape, eval_key(0), mesh, spread.seeds_split
     )
     return spread.trainer, spread.init_fn, spread.chunk_fn, compile_evaluate

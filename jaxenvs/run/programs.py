@@ -24,7 +24,7 @@ from jaxenvs.agents.base import Stages, Trainer
 from jaxenvs.core import Env
 from jaxenvs.core.xla import jit, jit_once
 from jaxenvs.physics.figures import figures_for
-from jaxenvs.run.evaluation import eval_key, evaluator_jit, make_evaluator
+from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.placement import mesh_programs, run_mesh
 from jaxenvs.run.run_config import ResolvedConfig, build, seed_keys
 
@@ -210,9 +210,7 @@ def build_programs(
     evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
     keys = seed_keys(resolved.train.seed, seeds)
     key_shape = jax.eval_shape(lambda: eval_key(0))
-    evaluate = evaluator_jit(resolved.train.eval_every, env.physics)(
-        jax.vmap(evaluator, in_axes=(0, None))
-    )
+    evaluate = jit(jax.vmap(evaluator, in_axes=(0, None)))
     params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), init_fn.eval_shape(keys))
     later = BackgroundCompile(lambda: evaluate.lower(params_shape, key_shape).compile())
     return Programs(env, trainer, init_fn, chunk_fn, later)

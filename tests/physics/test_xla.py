@@ -100,53 +100,26 @@ def test_a_runs_init_is_compiled_as_a_program_run_once(monkeypatch):
     assert jax.tree.leaves(built.init_fn(run_config.seed_keys(0, 1)))
 
 
-def test_a_runs_evaluator_is_compiled_as_a_program_run_once_when_it_runs_once(monkeypatch):
-    from jaxenvs.run import evaluation, programs, run_config
-
-    assert evaluation.evaluator_jit(0, "c") is xla.jit_once
-    assert evaluation.evaluator_jit(2, "c") is xla.jit  # evaluated every 2 chunks
-    assert evaluation.evaluator_jit(0, "mjx") is xla.jit  # MJX's physics runs slow at -O0
-    made: list = []
-    asked: list = []
-    monkeypatch.setattr(
-        programs, "evaluator_jit", lambda *how: asked.append(how) or _recording(made)
-    )
-    programs.build_programs.cache_clear()
-    resolved = run_config.resolve_config(
-        "CartPole-v0", "ppo", agent_overrides={"num_envs": 4}, train_overrides={"eval_episodes": 2}
-    )
-    try:
-        built = programs.build_programs(resolved, devices=1, staged=False)
-    finally:
-        programs.build_programs.cache_clear()
-    assert asked == [(0, built.env.physics)] and len(made) == 1
-    params = jax.vmap(built.trainer.policy_params)(built.init_fn(run_config.seed_keys(0, 1)))
-    returns, _, _ = built.evaluate(params, evaluation.eval_key(0))
-    assert returns.shape == (1, 2) and np.all(returns >= 1)
-
-
 _MESH_INITS = """
 import sys
 from jaxenvs.run import placement, programs, run_config
 sys.path.insert(0, sys.argv[1])
 from test_xla import _recording
-made, evaluators = [], []
+made = []
 placement.jit_once = _recording(made)
-placement.evaluator_jit = lambda *how: _recording(evaluators)
 for algo, seeds in (("ppo", 1), ("ppo", 2), ("qlearning", 1)):
     resolved = run_config.resolve_config(
         "CartPole-v0", algo, agent_overrides={"num_envs": 4}, train_overrides={"num_seeds": seeds}
     )
     built = programs.build_programs(resolved, devices=2)
     assert built.init_fn is made[-1], (algo, seeds)
-assert len(made) == 3 and len(evaluators) == 3, (made, evaluators)
+assert len(made) == 3, made
 """
 
 
 def test_a_runs_init_over_host_devices_is_compiled_as_a_program_run_once():
     """Every layout of a run over several devices (the PPO trainer's own mesh, seeds
-    over devices, a sharded trainer) compiles its init with ``jit_once`` and its
-    evaluator with ``evaluator_jit``'s choice."""
+    over devices, a sharded trainer) compiles its init with ``jit_once``."""
     from host_devices import run_with_devices
 
     run_with_devices(2, _MESH_INITS, [str(Path(__file__).parent)])
