@@ -84,9 +84,6 @@ class JoystickConfig(HexapodConfig):
       action_filter: a first-order low-pass on the servo targets: each step's targets are
         ``(1 - action_filter) * targets(applied action) + action_filter * targets of the
         step before`` (0: none; the targets start at the stance, 0).
-      sensor_history: the observation also holds the sensor entries of this many control
-        steps before the current one (each :data:`SENSOR_SIZE`, the most recent first;
-        zeros before the episode's first steps; 0: none).
     """
 
     vx_range: Range = (-0.4, 0.4)
@@ -109,7 +106,6 @@ class JoystickConfig(HexapodConfig):
     joint_bias: float = 0.0
     gyro_bias: float = 0.0
     action_filter: float = 0.0
-    sensor_history: int = 0
 
     nonnegative: ClassVar[tuple[str, ...]] = (
         *HexapodConfig.nonnegative,
@@ -121,7 +117,6 @@ class JoystickConfig(HexapodConfig):
         "action_delay_max",
         "joint_bias",
         "gyro_bias",
-        "sensor_history",
     )
 
     def validate(self) -> None:
@@ -155,9 +150,6 @@ class JoystickExtras(struct.PyTreeNode):
       delay: this env's action delay (control steps, int32), drawn at reset.
       bias: this env's sensor offsets (:data:`SENSOR_SIZE`; joint angles and gyro, zero
         elsewhere), drawn at reset.
-      history: the sensor entries (noiseless, unbiased) at the start of the last
-        ``sensor_history`` control steps (``(sensor_history, SENSOR_SIZE)``, the most
-        recent first).
     """
 
     command: jax.Array
@@ -166,7 +158,6 @@ class JoystickExtras(struct.PyTreeNode):
     prev_action: jax.Array
     delay: jax.Array
     bias: jax.Array
-    history: jax.Array
 
 
 def heading(quat: jax.Array) -> jax.Array:
@@ -270,9 +261,7 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
         self._params = JoystickParams(model=self.robot.default_fields(self.sim))
         #: the number of past actions in the observation (and the delay buffer's length)
         self.action_history = config.action_delay_max + 1
-        #: the sensor entries in the observation: the current ones and their history
-        self.sensor_entries = SENSOR_SIZE * (1 + config.sensor_history)
-        self.observation_size = self.sensor_entries + 18 * self.action_history + 3
+        self.observation_size = SENSOR_SIZE + 18 * self.action_history + 3
 
     def _init(self, key: jax.Array, params: JoystickParams) -> tuple[mjx.Data, JoystickExtras]:
         u = jax.random.uniform(key, (23,))  # one draw: see HexapodWalk._init
@@ -285,7 +274,6 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
             prev_action=jnp.zeros(18),
             delay=jnp.zeros((), jnp.int32),
             bias=jnp.zeros(SENSOR_SIZE),
-            history=jnp.zeros((c.sensor_history, SENSOR_SIZE)),
         )
         biased = c.joint_bias > 0 or c.gyro_bias > 0
         if c.action_delay_max == 0 and not biased:
@@ -324,10 +312,6 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
             kick = c.push_speed * jnp.stack([jnp.cos(angle), jnp.sin(angle)])
             kick = jnp.where(u[4] < c.push_probability, kick, jnp.zeros(2))
             data = data.replace(qvel=data.qvel.at[:2].add(kick))
-        history = extras.history
-        if c.sensor_history > 0:  # the readings the policy saw for this action
-            now = self.sensors(self.robot.sense(data))
-            history = jnp.concatenate([now[None], history[:-1]])
         targets = self.robot.command(applied)
         if c.action_filter > 0:  # data.ctrl: the targets of the step before
             # (the command map is linear in the action and the weights sum to 1: this is
@@ -341,7 +325,6 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
             since=jnp.where(redraw, 0, since),
             actions=actions,
             prev_action=extras.actions[0],
-            history=history,
         )
         return data, extras
 
@@ -357,38 +340,24 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
             return action
         return low_pass(action, jnp.asarray(previous, jnp.float32), beta)
 
-    def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, ...]:
+    def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, jax.Array]:
         """The task's own input to :meth:`observation`: (command (3), the last
         ``action_delay_max + 1`` actions (``(action_delay_max + 1, 18)``, the most recent
-        first)), and with ``sensor_history`` the past sensor entries
-        (``(sensor_history, SENSOR_SIZE)``, the most recent first)."""
+        first))."""
         del data
-        if self.config.sensor_history > 0:
-            return extras.command, extras.actions, extras.history
         return extras.command, extras.actions
 
-    def sensors(self, readings: Readings) -> jax.Array:
-        """The observation's :data:`SENSOR_SIZE` sensor entries of ``readings``: joint
-        angles, joint velocities, gravity in the body frame, gyro."""
+    def observation(self, readings: Readings, task: tuple[jax.Array, jax.Array]) -> jax.Array:
+        """The noiseless, unbiased observation (the layout in the class docstring) of the
+        robot's ``readings`` (only its non-privileged sensors are read) and ``(command,
+        actions)``."""
+        command, actions = task
         return jnp.concatenate(
             [
                 self.robot.joint_pos(readings),
                 self.robot.joint_vel(readings),
                 gravity_in_body(readings["imu_quat"]),
                 readings["imu_gyro"],
-            ]
-        )
-
-    def observation(self, readings: Readings, task: tuple[jax.Array, ...]) -> jax.Array:
-        """The noiseless, unbiased observation (the layout in the class docstring) of the
-        robot's ``readings`` (only its non-privileged sensors are read) and the task state
-        (:meth:`task_state`)."""
-        command, actions = task[0], task[1]
-        past = [jnp.reshape(task[2], (-1,))] if len(task) > 2 else []
-        return jnp.concatenate(
-            [
-                self.sensors(readings),
-                *past,
                 jnp.reshape(actions, (18 * self.action_history,)),
                 command,
             ]
@@ -399,13 +368,11 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
     ) -> jax.Array:
         c = self.config
         obs = self.observation(self.robot.sense(data), self.task_state(data, extras))
-        frames = 1 + c.sensor_history
-        exact = jnp.zeros(obs.shape[0] - self.sensor_entries)  # the actions and the command
+        exact = jnp.zeros(obs.shape[0] - SENSOR_SIZE)  # the actions and the command
         if c.joint_bias > 0 or c.gyro_bias > 0:
-            obs = obs + jnp.concatenate([jnp.tile(extras.bias, frames), exact])
+            obs = obs + jnp.concatenate([extras.bias, exact])
         if c.obs_noise > 0:
-            sensor_std = jnp.tile(jnp.asarray(OBS_NOISE), frames)
-            std = c.obs_noise * jnp.concatenate([sensor_std, exact])
+            std = c.obs_noise * jnp.concatenate([jnp.asarray(OBS_NOISE), exact])
             obs = obs + std * jax.random.normal(key, obs.shape)
         return obs
 
@@ -418,7 +385,7 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
     ) -> tuple[jax.Array, jax.Array]:
         """The task state ``(command, actions)`` with ``command`` in force (a deploy loop's
         task input)."""
-        return jnp.asarray(command, jnp.float32), *task[1:]
+        return jnp.asarray(command, jnp.float32), task[1]
 
     def with_action_history(
         self, task: tuple[jax.Array, jax.Array], actions: jax.Array
@@ -426,7 +393,7 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
         """The task state ``(command, actions)`` with ``actions`` (``(action_history,
         18)``, the most recent first: the policy's last actions in a deploy loop, before
         :meth:`actuator_command`'s filter)."""
-        return task[0], jnp.asarray(actions, jnp.float32), *task[2:]
+        return task[0], jnp.asarray(actions, jnp.float32)
 
     def tracking_errors(
         self, prev: mjx.Data, data: mjx.Data, task: tuple[jax.Array, jax.Array]
