@@ -73,6 +73,34 @@ def rough_training(recs: list[Rec]) -> Cells:
     return each_row(head, sorted(rec["rows"], key=lambda r: r["seed"]), cells)
 
 
+def rough_probes(recs: list[Rec]) -> Cells:
+    """One row per run of each record (a probe's rows name what it changed in ``probe``;
+    rows without one are the shipped config's): the train wall and chunks, the last
+    chunk's mean level, and the middle level's tracking and falls under MuJoCo C with
+    default and randomised physics."""
+
+    def cells(r: Row) -> list[str]:
+        c, rand = r["mujoco_c"]["mid"], r["mujoco_c_randomized"]["mid"]
+        return [
+            r.get("probe", "shipped config"),
+            *_run_cells(r)[:3],
+            f"{r['final_mean_level']:.2f}",
+            _figures(c),
+            _figures(rand),
+        ]
+
+    head = [
+        "probe",
+        "seed",
+        "train wall",
+        "chunks",
+        "mean level, last chunk",
+        "C mid: lin m/s / yaw rad/s / fell",
+        "C randomised mid",
+    ]
+    return each_row(head, [r for rec in recs for r in rec["rows"]], cells)
+
+
 def rough_tracking(recs: list[Rec]) -> Cells:
     """Per seed and engine group: RMS tracking errors and falls at the middle and the top
     level, and whether the middle level meets its targets."""
@@ -253,6 +281,15 @@ TABLES = {
     "rough-tracking-newton": Table(("ppo_joystick_rough_seeds_newton_h200",), rough_tracking),
     "rough-training-clearance": Table(("ppo_joystick_rough_clearance_h200",), rough_training),
     "rough-tracking-clearance": Table(("ppo_joystick_rough_clearance_h200",), rough_tracking),
+    "rough-probes-dec02": Table(
+        (
+            "ppo_joystick_rough_seeds_h200",
+            "ppo_joystick_rough_history5_h200",
+            "ppo_joystick_rough_history15_h200",
+            "ppo_joystick_rough_wide_h200",
+        ),
+        rough_probes,
+    ),
     "rough-training-h100": Table(("ppo_joystick_rough_seed0_cut_h100",), rough_training),
     "rough-tracking-h100": Table(("ppo_joystick_rough_seed0_cut_h100",), rough_tracking),
 }
