@@ -1,6 +1,7 @@
-# Sourced by the GPU-host scripts (walker_gpus2.sh, flat_contact.sh, flat_seeds.sh): results
-# go to $OUT (default out/); mujoco's wheels are installed from .whl/ (drop that line where
-# they are installed), the native engine built, and the host's GPUs and cores listed.
+# Sourced by the GPU-host scripts (walker_gpus2.sh, flat_contact.sh, flat_seeds.sh,
+# rough_seeds.sh): results go to $OUT (default out/); mujoco's wheels are installed from
+# .whl/ (drop that line where they are installed), the native engine built, and the host's
+# GPUs and cores listed.
 # train_eval trains one run on one GPU and evaluates it on both engines.
 set -u
 OUT=${OUT:-out}

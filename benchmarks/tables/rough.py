@@ -77,7 +77,8 @@ def rough_probes(recs: list[Rec]) -> Cells:
     """One row per run of each record (a probe's rows name what it changed in ``probe``;
     rows without one are the shipped config's): the train wall and chunks, the last
     chunk's mean level, and the middle level's tracking and falls under MuJoCo C with
-    default and randomised physics."""
+    default and randomised physics. Train walls are as each record's machine says (a host
+    to itself or shared: the first chunk's compile differs)."""
 
     def cells(r: Row) -> list[str]:
         c, rand = r["mujoco_c"]["mid"], r["mujoco_c_randomized"]["mid"]
@@ -96,7 +97,7 @@ def rough_probes(recs: list[Rec]) -> Cells:
         "chunks",
         "mean level, last chunk",
         "C mid: lin m/s / yaw rad/s / fell",
-        "C randomised mid",
+        "C, randomised mid",
     ]
     return each_row(head, [r for rec in recs for r in rec["rows"]], cells)
 
