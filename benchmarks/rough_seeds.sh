@@ -2,7 +2,8 @@
 # Seeds of HexapodJoystickRough-v0, one run per GPU, all at once on one host, every run
 # cold and cut at $TRAIN_TIMEOUT s (default 660: a run over the issue's 600 s still ends
 # with its figures); each packed (benchmarks/seeds.py slim) and evaluated by
-# benchmarks/rough_seeds.py under MJX (its GPU) and MuJoCo C (its 16 cores). Arguments:
+# benchmarks/rough_seeds.py under MJX (its GPU) and MuJoCo C (its 16 cores), within
+# $EVAL_TIMEOUT s each (default 300): gpu_host.sh's train_eval. Arguments:
 # one NAME=SEED per GPU, in GPU order; CONFIG names the config (default: the shipped one),
 # e.g. the variant over 8,192 envs on a four-GPU host:
 #   CONFIG=ppo_HexapodJoystickRough-v0.wide.yaml bash benchmarks/rough_seeds.sh r0=0 r1=1 r2=2
@@ -14,26 +15,13 @@
 source benchmarks/gpu_host.sh
 mkdir -p runs
 CONFIG=${CONFIG:-ppo_HexapodJoystickRough-v0.yaml}
-
-rough_run() { # name gpu seed
-  local name=$1 gpu=$2 cores=$(($2 * 16))-$(($2 * 16 + 15)) s
-  s=$(date +%s.%N)
-  CUDA_VISIBLE_DEVICES=$gpu XDG_CACHE_HOME=/tmp/cache_$name taskset -c $cores timeout -s INT -k 20 ${TRAIN_TIMEOUT:-660} \
-    python3 -m jaxenvs train --config "$CONFIG" --seed $3 --no-video --no-compile-cache --quiet \
-    --out runs/$name > $OUT/log_$name.txt 2>&1
-  echo "$name whole $(python3 -c "import time; print(round(time.time() - $s, 1))") s" | tee -a $OUT/log_$name.txt
-  JAX_PLATFORMS=cpu taskset -c $cores python3 benchmarks/seeds.py slim runs/$name >> $OUT/log_$name.txt 2>&1
-  (CUDA_VISIBLE_DEVICES=$gpu taskset -c $cores timeout 300 python3 benchmarks/rough_seeds.py eval runs/$name \
-    >> $OUT/log_$name.txt 2>&1 || echo "$name mjx eval failed") &
-  (JAX_PLATFORMS=cpu taskset -c $cores timeout 300 python3 benchmarks/rough_seeds.py eval runs/$name --physics c \
-    >> $OUT/log_$name.txt 2>&1 || echo "$name c eval failed") &
-  wait
-  echo "$name done $(python3 -c "import time; print(round(time.time() - $s, 1))") s"
-}
+TRAIN_TIMEOUT=${TRAIN_TIMEOUT:-660} TRAIN_SIGNAL=INT EVAL_SCRIPT=benchmarks/rough_seeds.py
+EVAL_TIMEOUT=${EVAL_TIMEOUT:-300}
 
 gpu=0
 for spec in "$@"; do
-  rough_run ${spec%%=*} $gpu ${spec#*=} &
+  train_eval ${spec%%=*} $gpu $((gpu * 16))-$((gpu * 16 + 15)) HexapodJoystickRough-v0 \
+    --config "$CONFIG" --seed ${spec#*=} &
   gpu=$((gpu + 1))
 done
 wait
