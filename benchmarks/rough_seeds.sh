@@ -5,8 +5,8 @@
 # benchmarks/rough_seeds.py under MJX (its GPU) and MuJoCo C (its 16 cores), within
 # $EVAL_TIMEOUT s each (default 300): gpu_host.sh's train_eval. Arguments:
 # one NAME=SEED per GPU, in GPU order; CONFIG names the config (default: the shipped one),
-# e.g. the variant over 8,192 envs on a four-GPU host:
-#   CONFIG=ppo_HexapodJoystickRough-v0.wide.yaml bash benchmarks/rough_seeds.sh r0=0 r1=1 r2=2
+# e.g. three seeds on a four-GPU host:
+#   bash benchmarks/rough_seeds.sh r0=0 r1=1 r2=2
 # The runs land in runs/NAME, their logs and files in $OUT (runs.tgz). Then, here (after
 # an eval that failed or timed out there, run it here first:
 # `JAX_PLATFORMS=cpu python benchmarks/rough_seeds.py eval runs/r0 --physics c`):

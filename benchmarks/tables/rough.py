@@ -274,6 +274,8 @@ TABLES = {
     ),
     "rough-training-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_training),
     "rough-tracking-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_tracking),
+    "rough-training-wide": Table(("ppo_joystick_rough_seeds_wide_h200",), rough_training),
+    "rough-tracking-wide": Table(("ppo_joystick_rough_seeds_wide_h200",), rough_tracking),
     "rough-training": Table(("ppo_joystick_rough_seeds_h200",), rough_training),
     "rough-tracking": Table(("ppo_joystick_rough_seeds_h200",), rough_tracking),
     "rough-training-pit20": Table(("ppo_joystick_rough_seeds_pit20_h200",), rough_training),
