@@ -75,15 +75,15 @@ def rough_training(recs: list[Rec]) -> Cells:
 
 def rough_probes(recs: list[Rec]) -> Cells:
     """One row per run of each record (a probe's rows name what it changed in ``probe``;
-    rows without one are the shipped config's): the train wall and chunks, the last
-    chunk's mean level, and the middle level's tracking and falls under MuJoCo C with
-    default and randomised physics. Train walls are as each record's machine says (a host
-    to itself or shared: the first chunk's compile differs)."""
+    rows without one are the config shipped then, 4,096 envs x 32 steps): the train wall
+    and chunks, the last chunk's mean level, and the middle level's tracking and falls
+    under MuJoCo C with default and randomised physics. Train walls are as each record's
+    machine says (a host to itself or shared: the first chunk's compile differs)."""
 
     def cells(r: Row) -> list[str]:
         c, rand = r["mujoco_c"]["mid"], r["mujoco_c_randomized"]["mid"]
         return [
-            r.get("probe", "shipped config"),
+            r.get("probe", "4096 envs x 32 steps (shipped then)"),
             *_run_cells(r)[:3],
             f"{r['final_mean_level']:.2f}",
             _figures(c),
