@@ -78,7 +78,6 @@ LEG_RANGE = (0.46, 1.57, 1.57)  # half-ranges of hip yaw, femur, tibia (rad)
 #: a host constant (numpy): a JAX array here would start JAX's backends at import time
 JOINT_RANGE = np.asarray(LEG_RANGE * 6, np.float32)
 STAND_HEIGHT = 0.135  # torso height when standing on all six feet at zero angles (m)
-FOOT_RADIUS = 0.012  # the foot sphere's radius (m): its centre is this far above the tip
 LEGS = ("lf", "lm", "lr", "rf", "rm", "rr")
 WALK_FIELDS = (
     "body_mass",
@@ -91,23 +90,11 @@ WALK_FIELDS = (
 LEG_FIELDS = WALK_FIELDS[:-1]
 
 
-def leg_tip(q: jax.Array, short: float = 0.0) -> jax.Array:
-    """Forward kinematics of one leg: foot tip in the hip's frame for angles ``q`` (3,);
-    with ``short``, the point that far up the tibia from the tip (``FOOT_RADIUS``: the
-    foot sphere's centre)."""
-    tibia = TIP - short
-    reach = COXA + FEMUR * jnp.cos(q[1]) + tibia * jnp.sin(q[1] + q[2])
-    height = FEMUR * jnp.sin(q[1]) - tibia * jnp.cos(q[1] + q[2])
+def leg_tip(q: jax.Array) -> jax.Array:
+    """Forward kinematics of one leg: foot tip in the hip's frame for angles ``q`` (3,)."""
+    reach = COXA + FEMUR * jnp.cos(q[1]) + TIP * jnp.sin(q[1] + q[2])
+    height = FEMUR * jnp.sin(q[1]) - TIP * jnp.cos(q[1] + q[2])
     return jnp.stack([reach * jnp.cos(q[0]), reach * jnp.sin(q[0]), height])
-
-
-def _leg_mounts(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
-    """Each leg's hip in the torso's frame: position (6, 3) and yaw (6,), host constants
-    read from ``model``'s ``<leg>_coxa`` bodies (mounted turned about the torso's z)."""
-    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"{leg}_coxa") for leg in LEGS]
-    quats = np.asarray(model.body_quat[ids], np.float64)
-    yaws = 2.0 * np.arctan2(quats[:, 3], quats[:, 0])
-    return np.asarray(model.body_pos[ids], np.float32), yaws.astype(np.float32)
 
 
 def servo_targets(action: jax.Array) -> jax.Array:
@@ -215,21 +202,6 @@ class Hexapod(_HexapodServos):
         """The state's positions: torso position (3, m), orientation (4, w x y z), joint
         angles (18, rad)."""
         return jnp.concatenate([pos, quat, joints])
-
-    def foot_centres(self, qpos: jax.Array) -> jax.Array:
-        """World positions (6, 3; m) of the six foot spheres' centres, in :data:`LEGS`
-        order, from the state's positions alone (forward kinematics: :func:`leg_tip` from
-        each leg's mount on the torso, read from the MJCF); the same under every engine,
-        since it reads no derived field. A foot's lowest point is :data:`FOOT_RADIUS`
-        below its centre when the tibia is vertical."""
-        mounts, yaws = _leg_mounts(self.model)
-        c, s = np.cos(yaws), np.sin(yaws)
-        legs = qpos[7:25].reshape(6, 3)
-        tips = jax.vmap(lambda q: leg_tip(q, FOOT_RADIUS))(legs)  # each in its hip's frame
-        in_body = mounts + jnp.stack(
-            [c * tips[:, 0] - s * tips[:, 1], s * tips[:, 0] + c * tips[:, 1], tips[:, 2]], -1
-        )
-        return qpos[:3] + in_body @ quat_to_mat(qpos[3:7]).T
 
     @staticmethod
     def upright(readings: Mapping[str, jax.Array]) -> jax.Array:

@@ -71,7 +71,6 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import State
-from jaxenvs.robots.hexapod import FOOT_RADIUS
 from jaxenvs.scenes import HFIELD_CONTACTS, Ground, Marker, Scene
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, TerrainConfigError, generate
@@ -210,47 +209,17 @@ class JoystickRoughConfig(TerrainFields, JoystickConfig):
         ``tile_size`` from its spawn ...
       demote_fraction: ... else demote when it covered less than this fraction of the
         distance its commands asked for.
-      contact_height: a foot whose lowest point is less than this (m) above the ground
-        under its centre stands; otherwise it swings (the gait terms below).
-      air_time_weight, air_time_range: at each foot's touchdown, ``air_time_weight *
-        (min(t, high) - low)`` for a swing of ``t`` seconds, ``(low, high) =
-        air_time_range`` (legged_gym's feet air time, capped as Playground caps it):
-        swings shorter than ``low`` cost, longer ones pay up to ``high``.
-      swing_height_weight, swing_height: at each foot's touchdown, ``-
-        swing_height_weight * (peak / swing_height - 1)^2`` for the swing's highest
-        lowest point ``peak`` above the ground (m; Playground's feet height cost).
-        Both gait terms count only while the command is not zero (0 weights: neither,
-        and the feet are not tracked).
     """
 
     promote_fraction: float = 0.5
     demote_fraction: float = 0.5
-    contact_height: float = 0.008
-    air_time_weight: float = 0.0
-    air_time_range: tuple[float, float] = (0.2, 0.4)
-    swing_height_weight: float = 0.0
-    swing_height: float = 0.06
 
-    nonnegative: ClassVar[tuple[str, ...]] = (
-        *JoystickConfig.nonnegative,
-        "demote_fraction",
-        "air_time_weight",
-        "swing_height_weight",
-    )
+    nonnegative: ClassVar[tuple[str, ...]] = (*JoystickConfig.nonnegative, "demote_fraction")
 
     def validate(self) -> None:
         super().validate()
         self.validate_terrain()
         require(self.promote_fraction > 0, "promote_fraction", "must be > 0")
-        require(self.contact_height > 0, "contact_height", "must be > 0")
-        low, high = self.air_time_range
-        require(0 <= low <= high, "air_time_range", "must be (low, high) with 0 <= low <= high")
-        require(self.swing_height > 0, "swing_height", "must be > 0")
-
-    @property
-    def tracks_feet(self) -> bool:
-        """Whether a gait term is on (the feet's swings are tracked only then)."""
-        return self.air_time_weight > 0 or self.swing_height_weight > 0
 
 
 @functools.lru_cache(maxsize=4)
@@ -279,19 +248,11 @@ class RoughExtras(JoystickExtras):
       level: the episode's level (int32; the carry's, for the ``level`` metric).
       spawn: where the body started (world x, y; m).
       commanded: the world-frame displacement the commands asked for so far (x, y; m).
-      air: each foot's time in its current swing (6; s; 0 standing), ...
-      peak: ... and its highest lowest point above the ground in it (6; m).
-      touch_air, touch_peak: the swing each foot ended at this step's touchdown (6 each;
-        0 where a foot did not touch down). All four stay 0 without a gait term.
     """
 
     level: jax.Array
     spawn: jax.Array
     commanded: jax.Array
-    air: jax.Array
-    peak: jax.Array
-    touch_air: jax.Array
-    touch_peak: jax.Array
 
 
 class TerrainTask(HexapodTask[Any]):
@@ -453,16 +414,8 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         data, extras = self._init(key, params)
         data, origin = self.on_tile(data, carry)
         fields = {f.name: getattr(extras, f.name) for f in dataclasses.fields(extras)}
-        feet = jnp.zeros(6, jnp.float32)
         rough = RoughExtras(
-            **fields,
-            level=carry.level,
-            spawn=origin[:2],
-            commanded=jnp.zeros(2, jnp.float32),
-            air=feet,
-            peak=feet,
-            touch_air=feet,
-            touch_peak=feet,
+            **fields, level=carry.level, spawn=origin[:2], commanded=jnp.zeros(2, jnp.float32)
         )
         return data, rough
 
@@ -476,8 +429,7 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         params: JoystickParams,
     ) -> tuple[mjx.Data, RoughExtras]:
         """The joystick's step, and the step's commanded displacement (the command in
-        force, turned by the heading at the step's start) added to ``commanded``; with a
-        gait term, the feet's swings (:meth:`swings`)."""
+        force, turned by the heading at the step's start) added to ``commanded``."""
         assert isinstance(extras, RoughExtras)
         yaw = heading(data.qpos[3:7])
         vx, vy = extras.command[0], extras.command[1]
@@ -485,43 +437,7 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         asked = self.control_dt * jnp.stack([cos * vx - sin * vy, sin * vx + cos * vy])
         data, new = super()._act(key, data, extras, action, params)
         assert isinstance(new, RoughExtras)
-        new = new.replace(commanded=extras.commanded + asked)
-        if self.config.tracks_feet:
-            new = self.swings(data, new)
-        return data, new
-
-    def feet_lift(self, qpos: jax.Array) -> jax.Array:
-        """Each foot's lowest point (its centre less ``FOOT_RADIUS``) above the ground
-        under its centre (6; m), by forward kinematics from ``qpos``."""
-        feet = self.robot.foot_centres(qpos)
-        return feet[:, 2] - FOOT_RADIUS - self.ground(feet[:, :2])
-
-    def swings(self, data: mjx.Data, extras: RoughExtras) -> RoughExtras:
-        """``extras`` with the feet's swings moved on by the step that ended in
-        ``data``: a foot under ``contact_height`` stands (its swing reset, and reported in
-        ``touch_air`` / ``touch_peak`` where one just ended), any other swings on."""
-        lift = self.feet_lift(data.qpos)
-        stands = lift < self.config.contact_height
-        landed = stands & (extras.air > 0)
-        air = jnp.where(stands, 0.0, extras.air + self.control_dt)
-        peak = jnp.where(stands, 0.0, jnp.maximum(extras.peak, lift))
-        return extras.replace(
-            air=air,
-            peak=peak,
-            touch_air=jnp.where(landed, extras.air, 0.0),
-            touch_peak=jnp.where(landed, extras.peak, 0.0),
-        )
-
-    def gait_reward(self, extras: RoughExtras) -> jax.Array:
-        """The gait terms of the step whose touchdowns ``extras`` reports (the config's
-        ``air_time_*`` and ``swing_height*``), 0 under a zero command."""
-        c = self.config
-        landed = extras.touch_air > 0
-        low, high = c.air_time_range
-        air = jnp.where(landed, jnp.minimum(extras.touch_air, high) - low, 0.0)
-        miss = jnp.where(landed, jnp.square(extras.touch_peak / c.swing_height - 1.0), 0.0)
-        total = c.air_time_weight * jnp.sum(air) - c.swing_height_weight * jnp.sum(miss)
-        return jnp.where(jnp.any(extras.command != 0), total, 0.0)
+        return data, new.replace(commanded=extras.commanded + asked)
 
     def _reward(
         self,
@@ -531,11 +447,8 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         extras: JoystickExtras,
         params: JoystickParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
-        """The joystick's reward and metrics (its ``height`` above the ground), with the
-        gait terms where set (:meth:`gait_reward`), and ``level`` and the height scan
-        (:data:`SCAN_KEYS`) among the metrics."""
+        """The joystick's reward and metrics (its ``height`` above the ground), with
+        ``level`` and the height scan (:data:`SCAN_KEYS`)."""
         assert isinstance(extras, RoughExtras)
         reward, metrics = super()._reward(prev, data, action, extras, params)
-        if self.config.tracks_feet:
-            reward = reward + self.gait_reward(extras)
         return reward, metrics | self.scan_metrics(data, extras.level)
