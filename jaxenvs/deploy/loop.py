@@ -255,12 +255,14 @@ def _one_step(
         value = st.commands.at(tick - t0)
         if value is not None:
             st.task = st.host.with_input(st.task, value)
-    obs = st.host.observe(frame.readings, st.host.with_action_history(st.task, st.sent))
+    task = st.host.with_clock(st.task, k)  # a task with a clock: the steps since the start
+    obs = st.host.observe(frame.readings, st.host.with_action_history(task, st.sent))
     if not np.all(np.isfinite(obs)):
         raise DeployError("the observation is not finite")
     action, finite = policy.act(obs)
     if not finite:
         raise DeployError("the policy's output is not finite")
+    action = st.host.prior_action(task, action)  # a task's prior (its env applies it too)
     command = st.host.actuator_command(action, st.command)
     link.send(k, command)
     st.command = command

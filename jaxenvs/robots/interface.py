@@ -265,8 +265,12 @@ class HostTask:
       (:meth:`with_input`: the operator's input, e.g. a joystick command, into the task
       state), ``action_history`` and ``with_action_history(task, actions)``
       (:meth:`with_action_history`: for an observation holding the last
-      ``action_history`` actions) and ``tracking_errors(prev, data, task)``
-      (:meth:`tracking`: errors of a ground-truth step against the input in force).
+      ``action_history`` actions), ``tracking_errors(prev, data, task)``
+      (:meth:`tracking`: errors of a ground-truth step against the input in force), and
+      ``with_clock(task, steps)`` and ``prior_action(task, action)`` (:meth:`with_clock`,
+      :meth:`prior_action`: a task whose state holds the control steps since the start
+      and whose action adds a prior to the policy's, e.g. ``HexapodJoystickRough-v0``'s
+      gait prior).
     """
 
     def __init__(self, env: Any, seed: int = 0) -> None:
@@ -283,6 +287,8 @@ class HostTask:
         self._truth_fns = jit(self._of_truth)
         self._input = jit(env.with_task_input)
         self._history = jit(env.with_action_history)
+        self._clock = jit(env.with_clock) if hasattr(env, "with_clock") else None
+        self._prior = jit(env.prior_action) if hasattr(env, "prior_action") else None
         #: how many of the last actions the observation holds (the task's
         #: ``action_history``; 1 for a task without one, which ignores them)
         self.action_history = int(env.action_history)
@@ -324,8 +330,9 @@ class HostTask:
             self.needs_input = True  # the task's state must come from the truth or a command
         import jax
 
-        task = self.with_action_history(task, self.zero_history)
+        task = self.with_action_history(self.with_clock(task, 0), self.zero_history)
         self.observe(readings, task)
+        self.prior_action(task, self.zero_action)
         self.tracking(truth, truth, task)
         leaves = jax.tree.leaves(task)
         shape = self.env.task_input_shape
@@ -349,6 +356,19 @@ class HostTask:
         for a task whose observation holds them (its ``with_action_history``); ``task``
         itself otherwise."""
         return self._history(task, actions)
+
+    def with_clock(self, task: Any, steps: int) -> Any:
+        """The task state at ``steps`` control steps since the drive's start (the task's
+        ``with_clock``); ``task`` itself for a task without a clock."""
+        return task if self._clock is None else self._clock(task, np.int32(steps))
+
+    def prior_action(self, task: Any, action: np.ndarray) -> np.ndarray:
+        """The action to apply for the policy's ``action`` in task state ``task`` (the
+        task's ``prior_action``: what its env applies and its observation's history
+        holds); ``action`` itself for a task without a prior."""
+        if self._prior is None:
+            return action
+        return np.asarray(self._prior(task, action), np.asarray(action).dtype)
 
     @staticmethod
     def _tracking_of(fn: Any) -> Any:

@@ -129,15 +129,18 @@ class _Commands:
         return self.value
 
 
-def _loop_beside_env(env: Any, actions: np.ndarray, delay: int) -> tuple[_Link, list]:
-    """The deploy loop's steps on the readings of ``env`` (a ``HexapodJoystick-v0``), from
-    a reset whose drawn action delay is ``delay``, the env stepped with the same
-    ``actions``: asserts each step's loop observation is the env's; returns the link (what
-    the loop sent) and the env's ``data.ctrl`` after each step."""
+def _loop_beside_env(
+    env: Any, actions: np.ndarray, delay: int, env_id: str = "HexapodJoystick-v0"
+) -> tuple[_Link, list]:
+    """The deploy loop's steps on the readings of ``env`` (a ``HexapodJoystick-v0``, or
+    the ``env_id`` of a task of its family), from a reset whose drawn action delay is
+    ``delay``, the env stepped with the same ``actions``: asserts each step's loop
+    observation is the env's; returns the link (what the loop sent) and the env's
+    ``data.ctrl`` after each step."""
     host = HostTask(env)
     model = env.sim.physics_mj_model
     truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
-    host.warm(spec_of(env, "HexapodJoystick-v0").sizes(), truth)
+    host.warm(spec_of(env, env_id).sizes(), truth)
     link, policy, commands = _Link(), _Policy(actions.astype(np.float32)), _Commands()
     st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
     opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
@@ -206,6 +209,31 @@ def test_loop_sends_the_envs_filtered_servo_targets(delay):
     # filtered: the second command is neither the second action nor the first command
     assert not np.allclose(link.sent[1], actions[1], atol=1e-3)
     np.testing.assert_allclose(link.sent[0], 0.5 * actions[0], atol=1e-6)
+
+
+def test_loop_applies_the_rough_gait_prior_as_its_env_does():
+    """``HexapodJoystickRough-v0`` with its gait prior and the command filter: step by
+    step the loop's observation (its clock's phase among it) is the env's, and the
+    commands it sends (the policy's actions plus the prior, filtered) drive the env's
+    servo targets; the prior lifts the femurs the policy did not."""
+    env = jaxenvs.make(
+        "HexapodJoystickRough-v0",
+        physics="c",
+        levels=3,
+        terrain_types=("flat",),
+        gait_frequency=2.5,
+        action_filter=0.5,
+        command_interval=50,
+        zero_probability=0.0,
+    )
+    assert env.observation_size == 65
+    actions = np.asarray(jax.random.uniform(jax.random.key(3), (8, 18), minval=-0.2, maxval=0.2))
+    link, ctrls = _loop_beside_env(env, actions, 0, "HexapodJoystickRough-v0")
+    for k, ctrl in enumerate(ctrls):
+        targets = np.asarray(env.robot.command(np.asarray(link.sent[k], np.float32)))
+        np.testing.assert_allclose(targets, ctrl, atol=1e-5)
+    femurs = np.asarray(link.sent)[:, 1::3] - 0.5 * actions[:, 1::3]  # past the filter's share
+    assert femurs.max() > 0.1  # lifted past anything the policy's +-0.2 gave
 
 
 def test_loop_refuses_a_task_built_without_the_policys_filter():

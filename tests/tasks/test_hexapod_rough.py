@@ -284,10 +284,51 @@ def test_the_observation_is_blind(env) -> None:
     np.testing.assert_allclose(np.asarray(one.obs), np.asarray(obs[0]), atol=1e-6)  # no noise
 
 
+def test_the_gait_prior_lifts_each_tripod_in_turn() -> None:
+    """With ``gait_frequency`` (2.5 Hz: a cycle of 8 control steps) the env applies the
+    policy's action plus a femur lift of ``gait_lift * max(0, sin)``, lf, rm, lr in the
+    first half-cycle and rf, lm, rr in the second, none under a zero command; the
+    observation (65 entries) holds the phase's sine and cosine before the command, the
+    same from the env and from ``observation(readings, task_state)``; the applied action
+    is what the observation's history holds."""
+    env = jaxenvs.make(ID, physics="c", **SMALL, gait_frequency=2.5, gait_lift=0.4)
+    assert isinstance(env, HexapodJoystickRough) and env.gait
+    assert env.observation_size == 65
+    command = jnp.asarray([0.2, 0.0, 0.0])
+    lifts = np.stack([np.asarray(env.gait_offset(jnp.int32(k), command)) for k in range(8)])
+    assert np.all(lifts[:, 0::3] == 0) and np.all(lifts[:, 2::3] == 0)  # femurs only
+    femur = lifts[:, 1::3]  # (step, leg lf lm lr rf rm rr)
+    np.testing.assert_allclose(femur[2], [0.4, 0, 0.4, 0, 0.4, 0], atol=1e-6)  # a quarter
+    np.testing.assert_allclose(femur[6], [0, 0.4, 0, 0.4, 0, 0.4], atol=1e-6)
+    assert np.all(femur[0] < 1e-6) and np.all(femur[4] < 1e-6)  # between the halves
+    assert not np.any(np.asarray(env.gait_offset(jnp.int32(2), jnp.zeros(3))))
+    s = jax.tree.map(lambda x: x[0], starts(env, [0], [FLAT]))
+    s = env.with_command(s, command)
+    step = jax.jit(env.step)
+    action = jnp.full(18, 0.7)
+    for k in range(3):
+        task = env.task_state(s.data, s.extras)
+        assert int(task[2]) == k
+        angle = 2 * np.pi * 2.5 * 0.05 * k
+        np.testing.assert_allclose(
+            np.asarray(s.obs[-5:-3]), [np.sin(angle), np.cos(angle)], atol=1e-6
+        )
+        readings = env.robot.sense(s.data)
+        np.testing.assert_allclose(
+            np.asarray(env.observation(readings, task))[42:], np.asarray(s.obs)[42:], atol=1e-6
+        )
+        applied = env.prior_action(task, action)
+        s = step(s, action, env.default_params)
+        np.testing.assert_allclose(np.asarray(s.extras.actions[0]), np.asarray(applied))
+    assert float(s.extras.actions[0][1]) == 1.0  # lf's femur at a quarter cycle: clipped
+
+
 @pytest.mark.parametrize(
     "field, value",
     [
         ("cone", "conic"),
+        ("gait_frequency", -1.0),
+        ("gait_lift", -0.1),
         ("spawn_types", ("lava",)),
         ("max_init_level", 4),
         ("tile_size", 3.01),

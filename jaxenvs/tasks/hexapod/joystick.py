@@ -340,14 +340,14 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
             return action
         return low_pass(action, jnp.asarray(previous, jnp.float32), beta)
 
-    def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, jax.Array]:
+    def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, ...]:
         """The task's own input to :meth:`observation`: (command (3), the last
         ``action_delay_max + 1`` actions (``(action_delay_max + 1, 18)``, the most recent
         first))."""
         del data
         return extras.command, extras.actions
 
-    def observation(self, readings: Readings, task: tuple[jax.Array, jax.Array]) -> jax.Array:
+    def observation(self, readings: Readings, task: tuple[jax.Array, ...]) -> jax.Array:
         """The noiseless, unbiased observation (the layout in the class docstring) of the
         robot's ``readings`` (only its non-privileged sensors are read) and ``(command,
         actions)``."""
@@ -381,22 +381,22 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
     task_input_shape = (3,)
 
     def with_task_input(
-        self, task: tuple[jax.Array, jax.Array], command: jax.Array
-    ) -> tuple[jax.Array, jax.Array]:
+        self, task: tuple[jax.Array, ...], command: jax.Array
+    ) -> tuple[jax.Array, ...]:
         """The task state ``(command, actions)`` with ``command`` in force (a deploy loop's
         task input)."""
         return jnp.asarray(command, jnp.float32), task[1]
 
     def with_action_history(
-        self, task: tuple[jax.Array, jax.Array], actions: jax.Array
-    ) -> tuple[jax.Array, jax.Array]:
+        self, task: tuple[jax.Array, ...], actions: jax.Array
+    ) -> tuple[jax.Array, ...]:
         """The task state ``(command, actions)`` with ``actions`` (``(action_history,
         18)``, the most recent first: the policy's last actions in a deploy loop, before
         :meth:`actuator_command`'s filter)."""
         return task[0], jnp.asarray(actions, jnp.float32)
 
     def tracking_errors(
-        self, prev: mjx.Data, data: mjx.Data, task: tuple[jax.Array, jax.Array]
+        self, prev: mjx.Data, data: mjx.Data, task: tuple[jax.Array, ...]
     ) -> dict[str, jax.Array]:
         """``lin`` (|cmd_xy - v_xy|, m/s) and ``yaw`` (|cmd_yaw - yaw rate|, rad/s) of the
         step ``prev -> data`` (one control period apart) under the command of ``task``: the

@@ -32,6 +32,13 @@ curriculum; a blind policy and a privileged critic.
   The joystick's reward reads no height, so it is unchanged.
 * **Observation.** The joystick's, unchanged (encoders, IMU, the last actions, the
   command): a blind policy that runs on a robot without a height sensor.
+* **Gait prior** (``gait_frequency`` > 0; off by default). A clock counts the control
+  steps since the episode's start (:class:`RoughExtras` ``clock``, the task state's third
+  entry); under a non-zero command each femur's action gets a lift in its tripod's
+  half-cycle (:meth:`HexapodJoystickRough.gait_offset`) before the delay, noise and
+  filter, the last actions in the observation hold the lifted ones, and the
+  observation holds the phase's sine and cosine before the command (65 entries). A
+  deploy loop keeps the clock and adds the lift (``with_clock``, ``prior_action``).
 * **Critic.** Privileged metrics a critic may read (PPO's ``critic_info``): the joystick's
   body velocity (``vel_forward``, ``vel_lateral``, ``yaw_rate``) and ``height``, and a
   height scan, one scalar per point (``scan_00`` .. ``scan_48``): the ground minus the
@@ -71,6 +78,7 @@ from flax import struct
 
 from jaxenvs.config import require
 from jaxenvs.core import State
+from jaxenvs.robots.base import Readings
 from jaxenvs.scenes import HFIELD_CONTACTS, Ground, Marker, Scene
 from jaxenvs.scenes.height import HeightField, height, height_scan, scan_grid
 from jaxenvs.scenes.terrain import TYPES, Terrain, TerrainConfig, TerrainConfigError, generate
@@ -209,12 +217,25 @@ class JoystickRoughConfig(TerrainFields, JoystickConfig):
         ``tile_size`` from its spawn ...
       demote_fraction: ... else demote when it covered less than this fraction of the
         distance its commands asked for.
+      gait_frequency, gait_lift: a tripod gait prior (0 Hz: none). A phase advancing at
+        ``gait_frequency`` from each episode's start; under a non-zero command each
+        femur's action gets ``gait_lift * max(0, sin(2 pi (phase + g / 2)))`` added
+        (``g`` 0 for lf, rm, lr and 1 for rf, lm, rr; clipped to [-1, 1]) before the
+        delay, noise and filter, and the observation gets the phase's sine and cosine
+        before the command.
     """
 
     promote_fraction: float = 0.5
     demote_fraction: float = 0.5
+    gait_frequency: float = 0.0
+    gait_lift: float = 0.38
 
-    nonnegative: ClassVar[tuple[str, ...]] = (*JoystickConfig.nonnegative, "demote_fraction")
+    nonnegative: ClassVar[tuple[str, ...]] = (
+        *JoystickConfig.nonnegative,
+        "demote_fraction",
+        "gait_frequency",
+        "gait_lift",
+    )
 
     def validate(self) -> None:
         super().validate()
@@ -248,11 +269,13 @@ class RoughExtras(JoystickExtras):
       level: the episode's level (int32; the carry's, for the ``level`` metric).
       spawn: where the body started (world x, y; m).
       commanded: the world-frame displacement the commands asked for so far (x, y; m).
+      clock: control steps since the episode's start (int32; the gait prior's phase).
     """
 
     level: jax.Array
     spawn: jax.Array
     commanded: jax.Array
+    clock: jax.Array
 
 
 class TerrainTask(HexapodTask[Any]):
@@ -386,11 +409,82 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
     heights above the ground; ``level`` and the height scan among the metrics."""
 
     metric_keys = (*HexapodJoystick.metric_keys, "level", *SCAN_KEYS)  # type: ignore[assignment]
+    #: the joystick's deploy fields and the gait prior's (the observation's layout and the
+    #: action a deploy loop applies)
+    deploy_fields = (*HexapodJoystick.deploy_fields, "gait_frequency", "gait_lift")
     config: JoystickRoughConfig
 
     def __init__(self, config: JoystickRoughConfig | None = None) -> None:
         config = config or JoystickRoughConfig()
         super().__init__(config, self.setup_terrain(config))
+        #: whether the tripod gait prior is on (``gait_frequency`` > 0)
+        self.gait = config.gait_frequency > 0
+        if self.gait:
+            self.observation_size += 2
+
+    # ------------------------------------------------------------------ the gait prior
+    def gait_phase(self, clock: jax.Array) -> jax.Array:
+        """The gait prior's phase (cycles, from 0 at an episode's start) after ``clock``
+        control steps."""
+        return clock.astype(jnp.float32) * self.control_dt * self.config.gait_frequency
+
+    def gait_offset(self, clock: jax.Array, command: jax.Array) -> jax.Array:
+        """The gait prior's action offset (18) after ``clock`` control steps under
+        ``command``: each femur's ``gait_lift * max(0, sin(2 pi (phase + g / 2)))``, ``g``
+        0 for the tripod lf, rm, lr and 1 for rf, lm, rr; zero under a zero command."""
+        group = jnp.asarray([0.0, 0.5, 0.0, 0.5, 0.0, 0.5])  # lf lm lr rf rm rr
+        wave = jnp.sin(2.0 * math.pi * (self.gait_phase(clock) + group))
+        lift = self.config.gait_lift * jnp.maximum(0.0, wave)
+        lift = jnp.where(jnp.any(command != 0), lift, 0.0)
+        return jnp.zeros((6, 3)).at[:, 1].set(lift).reshape(18)
+
+    def prior_action(self, task: tuple[jax.Array, ...], action: jax.Array) -> jax.Array:
+        """The action the env applies and the observation's history holds for the policy's
+        ``action`` in task state ``task``: with the gait prior, ``action`` plus
+        :meth:`gait_offset` at the task's clock and command, clipped to [-1, 1];
+        ``action`` itself without (a deploy loop applies it to each action it sends)."""
+        if not self.gait:
+            return action
+        command, _, clock = task
+        return jnp.clip(action + self.gait_offset(clock, command), -1.0, 1.0)
+
+    def with_clock(self, task: tuple[jax.Array, ...], steps: jax.Array) -> tuple[jax.Array, ...]:
+        """The task state with its clock at ``steps`` control steps since the start (a
+        deploy loop's step count); ``task`` itself without the gait prior."""
+        if not self.gait:
+            return task
+        return (task[0], task[1], jnp.asarray(steps, jnp.int32))
+
+    def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, ...]:
+        """The joystick's ``(command, actions)``, and with the gait prior the clock
+        (control steps since the episode's start)."""
+        base = super().task_state(data, extras)
+        if not self.gait:
+            return base
+        assert isinstance(extras, RoughExtras)
+        return (*base, extras.clock)
+
+    def observation(self, readings: Readings, task: tuple[jax.Array, ...]) -> jax.Array:
+        """The joystick's observation, with the gait prior the phase's sine and cosine
+        before the command (``observation_size`` 65)."""
+        if not self.gait:
+            return super().observation(readings, task)
+        command, actions, clock = task
+        obs = super().observation(readings, (command, actions))
+        angle = 2.0 * math.pi * self.gait_phase(clock)
+        return jnp.concatenate([obs[:-3], jnp.stack([jnp.sin(angle), jnp.cos(angle)]), obs[-3:]])
+
+    def with_task_input(
+        self, task: tuple[jax.Array, ...], command: jax.Array
+    ) -> tuple[jax.Array, ...]:
+        """The joystick's, the clock kept."""
+        return (*super().with_task_input(task[:2], command), *task[2:])
+
+    def with_action_history(
+        self, task: tuple[jax.Array, ...], actions: jax.Array
+    ) -> tuple[jax.Array, ...]:
+        """The joystick's, the clock kept."""
+        return (*super().with_action_history(task[:2], actions), *task[2:])
 
     def _carry_update(self, carry: RoughCarry, final: State, params: JoystickParams) -> RoughCarry:
         """The next level by legged_gym's rule (module docstring), from the finished
@@ -415,7 +509,11 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         data, origin = self.on_tile(data, carry)
         fields = {f.name: getattr(extras, f.name) for f in dataclasses.fields(extras)}
         rough = RoughExtras(
-            **fields, level=carry.level, spawn=origin[:2], commanded=jnp.zeros(2, jnp.float32)
+            **fields,
+            level=carry.level,
+            spawn=origin[:2],
+            commanded=jnp.zeros(2, jnp.float32),
+            clock=jnp.zeros((), jnp.int32),
         )
         return data, rough
 
@@ -435,9 +533,10 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         vx, vy = extras.command[0], extras.command[1]
         cos, sin = jnp.cos(yaw), jnp.sin(yaw)
         asked = self.control_dt * jnp.stack([cos * vx - sin * vy, sin * vx + cos * vy])
+        action = self.prior_action(self.task_state(data, extras), action)
         data, new = super()._act(key, data, extras, action, params)
         assert isinstance(new, RoughExtras)
-        return data, new.replace(commanded=extras.commanded + asked)
+        return data, new.replace(commanded=extras.commanded + asked, clock=extras.clock + 1)
 
     def _reward(
         self,
