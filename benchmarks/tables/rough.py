@@ -293,6 +293,16 @@ TABLES = {
         ),
         rough_probes,
     ),
+    "rough-probes-gait": Table(
+        (
+            "ppo_joystick_rough_gait_h200",
+            "ppo_joystick_rough_gait_prior_h200",
+            "ppo_joystick_rough_gait_prior_cut_h200",
+        ),
+        rough_probes,
+    ),
+    "rough-training-gait-prior": Table(("ppo_joystick_rough_gait_prior_h200",), rough_training),
+    "rough-tracking-gait-prior": Table(("ppo_joystick_rough_gait_prior_h200",), rough_tracking),
     "rough-training-h100": Table(("ppo_joystick_rough_seed0_cut_h100",), rough_training),
     "rough-tracking-h100": Table(("ppo_joystick_rough_seed0_cut_h100",), rough_tracking),
 }

@@ -253,7 +253,7 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
     #: the config fields a deploy loop depends on: the observation's layout and the
     #: commands' filter (an exported policy's metadata carries them: ``jaxenvs deploy``
     #: builds the task with them)
-    deploy_fields = ("action_delay_max", "action_filter")
+    deploy_fields: tuple[str, ...] = ("action_delay_max", "action_filter")
 
     def __init__(self, config: JoystickConfig | None = None, ground: Ground | None = None) -> None:
         config = config or JoystickConfig()
