@@ -202,8 +202,9 @@ class _Step:
         self.frame_seq = -1
         self.truth: tuple[int, dict[str, np.ndarray]] | None = None
         self.action: np.ndarray | None = None
-        #: the policy's last actions (unfiltered: what the observation holds), the most
-        #: recent first (zeros before the first)
+        #: the last actions applied (the policy's, with a task's prior where it has one;
+        #: unfiltered: what the observation holds), the most recent first (zeros before the
+        #: first)
         self.sent: np.ndarray = host.zero_history
         #: the last command sent (per actuator; zeros before the first)
         self.command: np.ndarray = host.zero_command
@@ -255,7 +256,8 @@ def _one_step(
         value = st.commands.at(tick - t0)
         if value is not None:
             st.task = st.host.with_input(st.task, value)
-    task = st.host.with_clock(st.task, k)  # a task with a clock: the steps since the start
+    # a task with a clock: control periods since the start, missed ones included
+    task = st.host.with_clock(st.task, k)
     obs = st.host.observe(frame.readings, st.host.with_action_history(task, st.sent))
     if not np.all(np.isfinite(obs)):
         raise DeployError("the observation is not finite")
@@ -305,7 +307,7 @@ def _one_step(
                 "obs": obs,
                 "action": action,
                 "command": command,
-                "task": _task_json(st.task),
+                "task": _task_json(task),
             },
         )
     st.frame_seq = frame.seq

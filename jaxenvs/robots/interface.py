@@ -351,15 +351,17 @@ class HostTask:
         return self._input(task, value)
 
     def with_action_history(self, task: Any, actions: np.ndarray) -> Any:
-        """The task state holding ``actions``, the policy's last ``action_history`` actions
-        (the most recent first; as the policy gave them, before a task's command filter),
+        """The task state holding ``actions``, the last ``action_history`` actions applied
+        (the most recent first; the policy's, with a task's :meth:`prior_action` where it
+        has one, before a task's command filter),
         for a task whose observation holds them (its ``with_action_history``); ``task``
         itself otherwise."""
         return self._history(task, actions)
 
     def with_clock(self, task: Any, steps: int) -> Any:
-        """The task state at ``steps`` control steps since the drive's start (the task's
-        ``with_clock``); ``task`` itself for a task without a clock."""
+        """The task state at ``steps`` control periods since the drive's start, missed
+        ones included (the loop's tick index; the task's ``with_clock``); ``task`` itself
+        for a task without a clock."""
         return task if self._clock is None else self._clock(task, np.int32(steps))
 
     def prior_action(self, task: Any, action: np.ndarray) -> np.ndarray:

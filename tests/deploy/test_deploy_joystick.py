@@ -236,6 +236,40 @@ def test_loop_applies_the_rough_gait_prior_as_its_env_does():
     assert femurs.max() > 0.1  # lifted past anything the policy's +-0.2 gave
 
 
+def test_the_loops_gait_clock_counts_missed_periods():
+    """The loop's clock is its tick index: after ticks 0 and 3 (two missed), the second
+    observation holds the phase of three control periods and the second action sent
+    carries the prior's lift at that phase."""
+    env = jaxenvs.make(
+        "HexapodJoystickRough-v0",
+        physics="c",
+        levels=3,
+        terrain_types=("flat",),
+        gait_frequency=2.5,
+        zero_probability=0.0,
+    )
+    host = HostTask(env)
+    model = env.sim.physics_mj_model
+    truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
+    host.warm(spec_of(env, "HexapodJoystickRough-v0").sizes(), truth)
+    link, policy, commands = _Link(), _Policy(np.zeros((2, 18), np.float32)), _Commands()
+    commands.value = np.asarray([0.2, 0.0, 0.0], np.float32)
+    st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
+    opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
+    state = jax.jit(env.reset)(jax.random.key(0))
+    readings = {n: np.asarray(v) for n, v in jax.jit(env.robot.sense)(state.data).items()}
+    readings = {n: v for n, v in readings.items() if n in env.robot.observable()}
+    t0 = time.monotonic()
+    for k in (0, 3):
+        link.frame = SensorFrame(k, 0.0, readings, time.monotonic())
+        loop._one_step(link, policy, st, rec, k, t0, time.monotonic(), opts, None)
+    angle = 2 * np.pi * 2.5 * env.control_dt * 3
+    np.testing.assert_allclose(policy.seen[1][-5:-3], [np.sin(angle), np.cos(angle)], atol=1e-6)
+    lift = np.asarray(env.gait_offset(jax.numpy.int32(3), commands.value))
+    assert lift[1::3].max() > 0.1
+    np.testing.assert_allclose(link.sent[1], lift, atol=1e-6)  # no filter: the lift itself
+
+
 def test_loop_refuses_a_task_built_without_the_policys_filter():
     """A policy trained with ``action_filter=0.5`` (its metadata's env config) driven
     through a task built without it: ``loop.run`` raises naming the field, before the

@@ -328,7 +328,9 @@ def test_the_gait_prior_lifts_each_tripod_in_turn() -> None:
     [
         ("cone", "conic"),
         ("gait_frequency", -1.0),
+        ("gait_frequency", 10.0),  # half the 20 Hz control rate: the phase would alias
         ("gait_lift", -0.1),
+        ("gait_lift", 2.5),
         ("spawn_types", ("lava",)),
         ("max_init_level", 4),
         ("tile_size", 3.01),

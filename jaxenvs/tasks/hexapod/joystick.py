@@ -391,7 +391,7 @@ class HexapodJoystick(HexapodTask[JoystickConfig]):
         self, task: tuple[jax.Array, ...], actions: jax.Array
     ) -> tuple[jax.Array, ...]:
         """The task state ``(command, actions)`` with ``actions`` (``(action_history,
-        18)``, the most recent first: the policy's last actions in a deploy loop, before
+        18)``, the most recent first: the last actions a deploy loop applied, before
         :meth:`actuator_command`'s filter)."""
         return task[0], jnp.asarray(actions, jnp.float32)
 

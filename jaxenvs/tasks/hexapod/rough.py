@@ -241,6 +241,13 @@ class JoystickRoughConfig(TerrainFields, JoystickConfig):
         super().validate()
         self.validate_terrain()
         require(self.promote_fraction > 0, "promote_fraction", "must be > 0")
+        nyquist = 0.5 / (self.timestep * self.substeps)
+        require(
+            self.gait_frequency < nyquist,
+            "gait_frequency",
+            f"must be below half the control rate ({nyquist:g} Hz)",
+        )
+        require(self.gait_lift <= 2, "gait_lift", "must be <= 2 (an action's whole range)")
 
 
 @functools.lru_cache(maxsize=4)
