@@ -226,6 +226,12 @@ class _Host:
     def with_action_history(self, task, actions):
         return task
 
+    def with_clock(self, task, steps):
+        return task
+
+    def prior_action(self, task, action):
+        return action
+
     def actuator_command(self, action, previous):
         return np.asarray(action, np.float64)
 
