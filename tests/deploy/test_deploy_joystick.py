@@ -129,6 +129,29 @@ class _Commands:
         return self.value
 
 
+def _warmed_host(env: Any, env_id: str) -> HostTask:
+    """``env``'s host task, warmed on the readings of ``env_id``'s robot at ``qpos0``."""
+    host = HostTask(env)
+    model = env.sim.physics_mj_model
+    truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
+    host.warm(spec_of(env, env_id).sizes(), truth)
+    return host
+
+
+def _gait_env(**extra: object) -> Any:
+    """A small ``HexapodJoystickRough-v0`` (flat tiles) with its gait prior at 2.5 Hz and
+    every command non-zero, under MuJoCo C."""
+    return jaxenvs.make(
+        "HexapodJoystickRough-v0",
+        physics="c",
+        levels=3,
+        terrain_types=("flat",),
+        gait_frequency=2.5,
+        zero_probability=0.0,
+        **extra,
+    )
+
+
 def _loop_beside_env(
     env: Any, actions: np.ndarray, delay: int, env_id: str = "HexapodJoystick-v0"
 ) -> tuple[_Link, list]:
@@ -137,10 +160,7 @@ def _loop_beside_env(
     ``delay``, the env stepped with the same ``actions``: asserts each step's loop
     observation is the env's; returns the link (what the loop sent) and the env's
     ``data.ctrl`` after each step."""
-    host = HostTask(env)
-    model = env.sim.physics_mj_model
-    truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
-    host.warm(spec_of(env, env_id).sizes(), truth)
+    host = _warmed_host(env, env_id)
     link, policy, commands = _Link(), _Policy(actions.astype(np.float32)), _Commands()
     st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
     opts = loop.LoopOptions(seconds=1.0, sensor_timeout_ms=1e6, max_late_ms=1e6)
@@ -216,16 +236,7 @@ def test_loop_applies_the_rough_gait_prior_as_its_env_does():
     step the loop's observation (its clock's phase among it) is the env's, and the
     commands it sends (the policy's actions plus the prior, filtered) drive the env's
     servo targets; the prior lifts the femurs the policy did not."""
-    env = jaxenvs.make(
-        "HexapodJoystickRough-v0",
-        physics="c",
-        levels=3,
-        terrain_types=("flat",),
-        gait_frequency=2.5,
-        action_filter=0.5,
-        command_interval=50,
-        zero_probability=0.0,
-    )
+    env = _gait_env(action_filter=0.5, command_interval=50)
     assert env.observation_size == 65
     actions = np.asarray(jax.random.uniform(jax.random.key(3), (8, 18), minval=-0.2, maxval=0.2))
     link, ctrls = _loop_beside_env(env, actions, 0, "HexapodJoystickRough-v0")
@@ -240,18 +251,8 @@ def test_the_loops_gait_clock_counts_missed_periods():
     """The loop's clock is its tick index: after ticks 0 and 3 (two missed), the second
     observation holds the phase of three control periods and the second action sent
     carries the prior's lift at that phase."""
-    env = jaxenvs.make(
-        "HexapodJoystickRough-v0",
-        physics="c",
-        levels=3,
-        terrain_types=("flat",),
-        gait_frequency=2.5,
-        zero_probability=0.0,
-    )
-    host = HostTask(env)
-    model = env.sim.physics_mj_model
-    truth = {"qpos": model.qpos0.copy(), "qvel": np.zeros(model.nv), "mocap_pos": np.zeros((0, 3))}
-    host.warm(spec_of(env, "HexapodJoystickRough-v0").sizes(), truth)
+    env = _gait_env()
+    host = _warmed_host(env, "HexapodJoystickRough-v0")
     link, policy, commands = _Link(), _Policy(np.zeros((2, 18), np.float32)), _Commands()
     commands.value = np.asarray([0.2, 0.0, 0.0], np.float32)
     st, rec = loop._Step(host, commands), loop.Record(dt=env.control_dt)  # type: ignore[arg-type]
