@@ -438,6 +438,20 @@ class RobotTask:
         del actions
         return task
 
+    def with_clock(self, task: Any, steps: Any) -> Any:
+        """The task state at ``steps`` control periods since a deploy loop's start, for a
+        task whose state holds a clock (``HexapodJoystickRough-v0``'s gait prior);
+        default: ``task`` (no clock)."""
+        del steps
+        return task
+
+    def prior_action(self, task: Any, action: Any) -> Any:
+        """The action the env applies (and an observation's history holds) for the
+        policy's ``action`` in task state ``task``, for a task that adds a prior to it
+        (``HexapodJoystickRough-v0``'s gait prior); default: ``action`` itself."""
+        del task
+        return action
+
     def tracking_errors(self, prev: Any, data: Any, task: Any) -> dict[str, jax.Array]:
         """The task's tracking errors of the step ``prev -> data`` (one control period
         apart) under the task state ``task`` (a joystick's velocity errors against its

@@ -270,7 +270,7 @@ class HostTask:
       ``with_clock(task, steps)`` and ``prior_action(task, action)`` (:meth:`with_clock`,
       :meth:`prior_action`: a task whose state holds the control steps since the start
       and whose action adds a prior to the policy's, e.g. ``HexapodJoystickRough-v0``'s
-      gait prior).
+      gait prior; identities by default).
     """
 
     def __init__(self, env: Any, seed: int = 0) -> None:
@@ -287,8 +287,8 @@ class HostTask:
         self._truth_fns = jit(self._of_truth)
         self._input = jit(env.with_task_input)
         self._history = jit(env.with_action_history)
-        self._clock = jit(env.with_clock) if hasattr(env, "with_clock") else None
-        self._prior = jit(env.prior_action) if hasattr(env, "prior_action") else None
+        self._clock = jit(env.with_clock)
+        self._prior = jit(env.prior_action)
         #: how many of the last actions the observation holds (the task's
         #: ``action_history``; 1 for a task without one, which ignores them)
         self.action_history = int(env.action_history)
@@ -360,16 +360,14 @@ class HostTask:
 
     def with_clock(self, task: Any, steps: int) -> Any:
         """The task state at ``steps`` control periods since the drive's start, missed
-        ones included (the loop's tick index; the task's ``with_clock``); ``task`` itself
-        for a task without a clock."""
-        return task if self._clock is None else self._clock(task, np.int32(steps))
+        ones included (the loop's tick index; the task's ``with_clock``: ``task`` itself
+        for a task without a clock)."""
+        return self._clock(task, np.int32(steps))
 
     def prior_action(self, task: Any, action: np.ndarray) -> np.ndarray:
         """The action to apply for the policy's ``action`` in task state ``task`` (the
         task's ``prior_action``: what its env applies and its observation's history
-        holds); ``action`` itself for a task without a prior."""
-        if self._prior is None:
-            return action
+        holds; ``action`` itself for a task without a prior)."""
         return np.asarray(self._prior(task, action), np.asarray(action).dtype)
 
     @staticmethod

@@ -451,7 +451,7 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         :meth:`gait_offset` at the task's clock and command, clipped to [-1, 1];
         ``action`` itself without (a deploy loop applies it to each action it sends)."""
         if not self.gait:
-            return action
+            return super().prior_action(task, action)
         command, _, clock = task
         return jnp.clip(action + self.gait_offset(clock, command), -1.0, 1.0)
 
@@ -459,7 +459,7 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         """The task state with its clock at ``steps`` control steps since the start (a
         deploy loop's step count); ``task`` itself without the gait prior."""
         if not self.gait:
-            return task
+            return super().with_clock(task, steps)
         return (task[0], task[1], jnp.asarray(steps, jnp.int32))
 
     def task_state(self, data: mjx.Data, extras: JoystickExtras) -> tuple[jax.Array, ...]:
