@@ -151,9 +151,11 @@ def test_ppo_ctrl_c_then_resume_gives_the_same_results(ppo, tmp_path, monkeypatc
 
 def test_ppo_in_stages_gives_the_one_program_results_and_resumes(ppo, tmp_path, monkeypatch):
     """The chunk as its rollout's and learning's programs (as an accelerator runs it),
-    here on a CPU: under the C engine the results of the chunk as one program, bit for
-    bit; under MJX, whose programs XLA fuses otherwise, the same to float32 rounding. A
-    Ctrl-C and resume reaches the uninterrupted staged run bit for bit."""
+    here on a CPU: the results of the chunk as one program to float32 rounding (XLA fuses
+    and vectorises the learning step of two programs otherwise than one's, and which way
+    depends on the processor: on one the C engine's runs agree bit for bit, on another in
+    the last bit of a weight). A Ctrl-C and resume reaches the uninterrupted staged run
+    bit for bit."""
     resolved, out_a, summary_a = ppo
     # the programs the run built (their init compiled once for the module), as it asks
     one = programs.build_programs(loop.resolve_scaling(loop.engine_resolved(resolved), None), None)
@@ -161,13 +163,9 @@ def test_ppo_in_stages_gives_the_one_program_results_and_resumes(ppo, tmp_path, 
     staged = dataclasses.replace(one, chunk_fn=stages)
     monkeypatch.setattr(loop, "build_programs", lambda r, d=None: staged)
     whole = runner.train(resolved, tmp_path / "whole", quiet=True)
-    if whole["physics"] == "c":
-        assert _figures(whole) == _figures(summary_a)
-        assert _rows(out_a) == _rows(tmp_path / "whole")
-        _same_checkpoint(out_a, tmp_path / "whole")
-    else:
-        _close_rows(_rows(out_a), _rows(tmp_path / "whole"))
-        _close_checkpoint(out_a, tmp_path / "whole")
+    assert whole["physics"] == summary_a["physics"]
+    _close_rows(_rows(out_a), _rows(tmp_path / "whole"))
+    _close_checkpoint(out_a, tmp_path / "whole")
     real = _interrupt_at(monkeypatch, 2)
     with pytest.raises(KeyboardInterrupt):
         runner.train(resolved, tmp_path / "cut", quiet=True)
