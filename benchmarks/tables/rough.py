@@ -300,6 +300,7 @@ TABLES = {
             "ppo_joystick_rough_gait_h200",
             "ppo_joystick_rough_gait_prior_h200",
             "ppo_joystick_rough_gait_prior_cut_h200",
+            "ppo_joystick_rough_gait_lift50_h200",
         ),
         rough_probes,
     ),
