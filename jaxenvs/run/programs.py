@@ -92,9 +92,9 @@ class StagedChunk:
     have ended. As one program the walker's chunk compiled in 28.5 s on one H200; apart,
     its rollout in 21.9 s and its learning in 6.8 s. The computation is the chunk's
     (:func:`chunk_of`); XLA compiles other programs, so on an accelerator its bits may
-    differ from the chunk as one program (on a CPU the tests find them within 1e-3
-    relative: equal under the C engine on some processors, a weight's last bit apart on
-    others). It launches two programs per update
+    differ from the chunk as one program (on a CPU the tests find them equal under the
+    C engine but for the last bit of a weight on some processors, and within 1e-3 under
+    MJX). It launches two programs per update
     and one to finish (17 a chunk for the walker's 8 updates), which an accelerator queues
     behind the running one.
     """
