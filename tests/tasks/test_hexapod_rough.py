@@ -268,6 +268,34 @@ def test_level_and_height_scan_metrics(env) -> None:
     np.testing.assert_allclose(grid[1], -env.config.init_height, atol=1e-6)  # flat ground
 
 
+def test_the_low_body_penalty(env) -> None:
+    """With ``low_body_weight`` the reward loses ``weight * (low_body_height - h)^2`` for a
+    body ``h`` above the ground under ``low_body_height``, and nothing above it; the
+    metrics are the same."""
+    weighted = HexapodJoystickRough(
+        dataclasses.replace(env.config, low_body_weight=400.0, low_body_height=0.1)
+    )
+    s = starts(env, [TOP, TOP], [SUMMIT, PIT])
+    ground = np.asarray(s.data.qpos[:, 2]) - env.config.init_height
+    qpos = s.data.qpos.at[:, 2].set(jnp.asarray(ground + np.array([0.07, 0.12])))
+    s = s.replace(data=s.data.replace(qpos=qpos))
+
+    def rewards(task: HexapodJoystickRough) -> tuple[np.ndarray, dict[str, Any]]:
+        def one(state: Any) -> Any:
+            return task._reward(
+                state.data, state.data, jnp.zeros(18), state.extras, task.default_params
+            )
+
+        reward, m = jax.jit(jax.vmap(one))(s)
+        return np.asarray(reward), m
+
+    plain, m0 = rewards(env)
+    less, m1 = rewards(weighted)
+    np.testing.assert_allclose(np.asarray(m0["height"]), [0.07, 0.12], atol=1e-5)
+    np.testing.assert_allclose(plain - less, [400.0 * 0.03**2, 0.0], atol=1e-4)
+    assert all(np.array_equal(np.asarray(m0[k]), np.asarray(m1[k])) for k in m0)
+
+
 def test_the_observation_is_blind(env) -> None:
     """The observation is the joystick's (63 entries): the same state on another tile,
     another level and another height gives the same observation."""
@@ -331,6 +359,7 @@ def test_the_gait_prior_lifts_each_tripod_in_turn() -> None:
         ("gait_frequency", 10.0),  # half the 20 Hz control rate: the phase would alias
         ("gait_lift", -0.1),
         ("gait_lift", 2.5),
+        ("low_body_weight", -1.0),
         ("spawn_types", ("lava",)),
         ("max_init_level", 4),
         ("tile_size", 3.01),

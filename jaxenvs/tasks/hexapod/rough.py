@@ -29,7 +29,9 @@ curriculum; a blind policy and a privileged critic.
 * **Heights.** The body's height, the fall rule (``min_height``) and the ``height``
   metric are measured above the ground right below the torso's origin
   (:func:`jaxenvs.scenes.height.height`, MuJoCo's own triangulation), not above z = 0.
-  The joystick's reward reads no height, so it is unchanged.
+  The joystick's reward reads no height; with ``low_body_weight`` > 0 (off in the env's
+  defaults) the reward also loses ``low_body_weight * max(0, low_body_height - h)^2``
+  for a body ``h`` above that ground, a body that sags towards the fall rule.
 * **Observation.** The joystick's, unchanged (encoders, IMU, the last actions, the
   command): a blind policy that runs on a robot without a height sensor.
 * **Gait prior** (``gait_frequency`` > 0; off in the env's defaults, on in the shipped PPO
@@ -224,18 +226,26 @@ class JoystickRoughConfig(TerrainFields, JoystickConfig):
         (``g`` 0 for lf, rm, lr and 1 for rf, lm, rr; clipped to [-1, 1]) before the
         delay, noise and filter, and the observation gets the phase's sine and cosine
         before the command.
+      low_body_height, low_body_weight: a penalty on a body that sags towards the fall
+        rule: ``low_body_weight * max(0, low_body_height - h)^2`` taken from the reward
+        at each step, ``h`` the body's height above the ground below it (as the fall
+        rule reads it; 0 weight: none).
     """
 
     promote_fraction: float = 0.5
     demote_fraction: float = 0.5
     gait_frequency: float = 0.0
     gait_lift: float = 0.38
+    low_body_height: float = 0.1
+    low_body_weight: float = 0.0
 
     nonnegative: ClassVar[tuple[str, ...]] = (
         *JoystickConfig.nonnegative,
         "demote_fraction",
         "gait_frequency",
         "gait_lift",
+        "low_body_height",
+        "low_body_weight",
     )
 
     def validate(self) -> None:
@@ -554,8 +564,13 @@ class HexapodJoystickRough(TerrainTask, HexapodJoystick):
         extras: JoystickExtras,
         params: JoystickParams,
     ) -> tuple[jax.Array, dict[str, jax.Array]]:
-        """The joystick's reward and metrics (its ``height`` above the ground), with
-        ``level`` and the height scan (:data:`SCAN_KEYS`)."""
+        """The joystick's reward and metrics (its ``height`` above the ground), less the
+        low-body penalty (``low_body_weight``), with ``level`` and the height scan
+        (:data:`SCAN_KEYS`)."""
         assert isinstance(extras, RoughExtras)
         reward, metrics = super()._reward(prev, data, action, extras, params)
+        c = self.config
+        if c.low_body_weight > 0:
+            sag = jnp.maximum(0.0, c.low_body_height - metrics["height"])
+            reward = reward - c.low_body_weight * sag * sag
         return reward, metrics | self.scan_metrics(data, extras.level)
