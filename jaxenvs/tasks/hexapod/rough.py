@@ -35,7 +35,7 @@ curriculum; a blind policy and a privileged critic.
 * **Observation.** The joystick's, unchanged (encoders, IMU, the last actions, the
   command): a blind policy that runs on a robot without a height sensor.
 * **Gait prior** (``gait_frequency`` > 0; off in the env's defaults, on in the shipped PPO
-  config: 2.5 Hz, a lift of 0.38). A clock counts the control
+  config: 2.5 Hz, a lift of 0.5, with the low-body penalty). A clock counts the control
   steps since the episode's start (:class:`RoughExtras` ``clock``, the task state's third
   entry); under a non-zero command each femur's action gets a lift in its tripod's
   half-cycle (:meth:`HexapodJoystickRough.gait_offset`) before the delay, noise and
