@@ -273,7 +273,7 @@ def test_the_low_body_penalty(env) -> None:
     body ``h`` above the ground under ``low_body_height``, and nothing above it; the
     metrics are the same."""
     weighted = HexapodJoystickRough(
-        dataclasses.replace(env.config, low_body_weight=400.0, low_body_height=0.1)
+        dataclasses.replace(env.config, low_body_weight=400.0, low_body_height=0.09)
     )
     s = starts(env, [TOP, TOP], [SUMMIT, PIT])
     ground = np.asarray(s.data.qpos[:, 2]) - env.config.init_height
@@ -292,7 +292,7 @@ def test_the_low_body_penalty(env) -> None:
     plain, m0 = rewards(env)
     less, m1 = rewards(weighted)
     np.testing.assert_allclose(np.asarray(m0["height"]), [0.07, 0.12], atol=1e-5)
-    np.testing.assert_allclose(plain - less, [400.0 * 0.03**2, 0.0], atol=1e-4)
+    np.testing.assert_allclose(plain - less, [400.0 * 0.02**2, 0.0], atol=1e-4)
     assert all(np.array_equal(np.asarray(m0[k]), np.asarray(m1[k])) for k in m0)
 
 
@@ -360,6 +360,7 @@ def test_the_gait_prior_lifts_each_tripod_in_turn() -> None:
         ("gait_lift", -0.1),
         ("gait_lift", 2.5),
         ("low_body_weight", -1.0),
+        ("low_body_height", -0.1),
         ("spawn_types", ("lava",)),
         ("max_init_level", 4),
         ("tile_size", 3.01),

@@ -29,8 +29,8 @@ curriculum; a blind policy and a privileged critic.
 * **Heights.** The body's height, the fall rule (``min_height``) and the ``height``
   metric are measured above the ground right below the torso's origin
   (:func:`jaxenvs.scenes.height.height`, MuJoCo's own triangulation), not above z = 0.
-  The joystick's reward reads no height; with ``low_body_weight`` > 0 (off in the env's
-  defaults) the reward also loses ``low_body_weight * max(0, low_body_height - h)^2``
+  The joystick's reward reads no height, unless ``low_body_weight`` > 0 (0 in the env's
+  defaults): then it also loses ``low_body_weight * max(0, low_body_height - h)^2``
   for a body ``h`` above that ground, a body that sags towards the fall rule.
 * **Observation.** The joystick's, unchanged (encoders, IMU, the last actions, the
   command): a blind policy that runs on a robot without a height sensor.
