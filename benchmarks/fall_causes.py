@@ -15,7 +15,6 @@ Prints one line per group (default or randomised physics, middle or top level) a
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 import numpy as np
 import rough_seeds
@@ -26,18 +25,13 @@ def causes(run_dir: str, physics: str, envs: int, seed: int, seconds: float) -> 
     env_id, env, act = rough_seeds.eval_env(run_dir, physics)
     if env_id != "HexapodJoystickRough-v0":
         raise SystemExit(f"{run_dir} is a run of {env_id}, not of HexapodJoystickRough-v0")
-    steps = round(seconds / env.control_dt)
-    if steps >= env.config.episode_length:
-        env = type(env)(dataclasses.replace(env.config, episode_length=steps + 1))
+    env, steps = rough_seeds.with_episode(env, seconds)
     out = rough_seeds.rollout(env, act, {"height": "height"}, envs, steps, seed)
     c = env.config
     types = np.arange(envs) % len(c.terrain_types)
     lines = [f"{run_dir} ({env.physics}; min_height {c.min_height} m)"]
-    groups = [(p, lv) for p in ("default", "randomized") for lv in ("mid", "top")]
-    for g, (params, level) in enumerate(groups):
-        cols = slice(g * envs, (g + 1) * envs)
-        up, after = np.asarray(out["up"])[:, cols], np.asarray(out["after"])[:, cols]
-        height = np.asarray(out["height"])[:, cols]
+    for params, level, x in rough_seeds.groups(out, envs):
+        up, after, height = x["up"], x["after"], x["height"]
         ended = up & ~after  # (steps, envs): the step each fallen env's episode ended
         for t, name in enumerate(c.terrain_types):
             sel = types == t

@@ -52,6 +52,7 @@ import dataclasses
 import json
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -110,6 +111,26 @@ def eval_env(
         **({} if hfield_contact is None else {"hfield_contact": hfield_contact}),
     )
     return env_id, type(env)(config), act
+
+
+#: the evaluation's groups of envs, ``(params, level)``, in the order of :func:`tiles`
+GROUPS = tuple((p, lv) for p in ("default", "randomized") for lv in ("mid", "top"))
+
+
+def with_episode(env: TerrainTask, seconds: float) -> tuple[TerrainTask, int]:
+    """``env`` with an episode longer than ``seconds`` (no time limit inside them) and
+    the number of control steps ``seconds`` make."""
+    steps = round(seconds / env.control_dt)
+    if steps >= env.config.episode_length:
+        env = type(env)(dataclasses.replace(env.config, episode_length=steps + 1))
+    return env, steps
+
+
+def groups(out: dict[str, Any], n: int) -> Iterator[tuple[str, str, dict[str, np.ndarray]]]:
+    """Each of :data:`GROUPS` with its ``(steps, n)`` arrays of :func:`rollout`'s
+    ``out``."""
+    for g, (params, level) in enumerate(GROUPS):
+        yield params, level, {k: np.asarray(v)[:, g * n : (g + 1) * n] for k, v in out.items()}
 
 
 def tiles(env: TerrainTask, n: int) -> RoughCarry:
@@ -192,9 +213,7 @@ def evaluate(
 ) -> dict[str, Any]:
     """The figures of one run (module docstring)."""
     env_id, env, act = eval_env(run_dir, physics, max_contacts, hfield_contact)
-    steps = round(seconds / env.control_dt)
-    if steps >= env.config.episode_length:
-        env = type(env)(dataclasses.replace(env.config, episode_length=steps + 1))
+    env, steps = with_episode(env, seconds)
     start = time.perf_counter()
     out = rollout(env, act, STEP_INFO[env_id], envs, steps, seed)
     c = env.config
@@ -214,10 +233,7 @@ def evaluate(
         "wall_seconds": round(time.perf_counter() - start, 2),  # compile included
     }
     types = np.arange(envs) % len(c.terrain_types)
-    for g, (params, level) in enumerate(
-        (p, lv) for p in ("default", "randomized") for lv in ("mid", "top")
-    ):
-        x = {k: np.asarray(v)[:, g * envs : (g + 1) * envs] for k, v in out.items()}
+    for params, level, x in groups(out, envs):
         per_type = {
             name: figures({k: v[:, types == t] for k, v in x.items()}, minutes)
             for t, name in enumerate(c.terrain_types)
