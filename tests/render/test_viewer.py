@@ -197,24 +197,28 @@ def _screenshot(display: str) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def xvfb() -> Iterator[str]:
-    """A virtual X display for the module; fails (not skips) when Xvfb is missing."""
+    """A virtual X display for the module; fails (not skips) when Xvfb is missing.
+
+    Xvfb picks a free display number itself and writes it to a pipe once it accepts
+    clients (``-displayfd``), so two test processes never share a number and no test
+    connects before the server is ready.
+    """
     exe = shutil.which("Xvfb")
     if exe is None:
         pytest.fail("the viewer tests need Xvfb: apt-get install -y xvfb")
-    number = next(n for n in range(90, 190) if not Path(f"/tmp/.X{n}-lock").exists())
+    read_fd, write_fd = os.pipe()
     proc = subprocess.Popen(
-        [exe, f":{number}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+        [exe, "-displayfd", str(write_fd), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        pass_fds=(write_fd,),
     )
+    os.close(write_fd)
     try:
-        deadline = time.monotonic() + 20
-        while not Path(f"/tmp/.X11-unix/X{number}").exists():
-            if proc.poll() is not None or time.monotonic() > deadline:
-                pytest.fail(f"Xvfb :{number} did not start")
-            time.sleep(0.1)
+        number = _read_display_number(read_fd, proc, timeout=20)
         yield f":{number}"
     finally:
+        os.close(read_fd)
         # close this process's GLFW connection first: Xlib exits the process when its
         # server goes away under an open connection
         import glfw
@@ -222,6 +226,22 @@ def xvfb() -> Iterator[str]:
         glfw.terminate()
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def _read_display_number(fd: int, proc: subprocess.Popen[bytes], timeout: float) -> int:
+    """The display number Xvfb writes to ``fd`` (a newline-terminated decimal) when ready."""
+    import select
+
+    text = b""
+    deadline = time.monotonic() + timeout
+    while not text.endswith(b"\n"):
+        left = deadline - time.monotonic()
+        ready, _, _ = select.select([fd], [], [], max(left, 0))
+        chunk = os.read(fd, 16) if ready else b""
+        if not chunk:  # timed out, or Xvfb closed the pipe without a number
+            pytest.fail(f"Xvfb did not start (exit code {proc.poll()})")
+        text += chunk
+    return int(text)
 
 
 @pytest.mark.viewer
