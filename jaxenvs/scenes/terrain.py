@@ -139,7 +139,19 @@ class TerrainConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        for name in ("levels", "obstacle_count", "seed"):
+            value = getattr(self, name)
+            _check(
+                isinstance(value, int | np.integer) and not isinstance(value, bool),
+                name,
+                f"must be an integer, got {value!r}",
+            )
+            object.__setattr__(self, name, int(value))
         _check(self.levels >= 1, "levels", "must be >= 1")
+        _check(self.seed >= 0, "seed", "must be >= 0")
+        _check(not isinstance(self.types, str), "types", "must be a sequence of type names")
+        # a list kept as a tuple: the config stays hashable (terrains are cached by config)
+        object.__setattr__(self, "types", tuple(self.types))
         _check(len(self.types) >= 1, "types", "must name at least one type")
         unknown = sorted(set(self.types) - set(TYPES))
         _check(not unknown, "types", f"unknown {unknown}; known: {', '.join(TYPES)}")
@@ -153,6 +165,7 @@ class TerrainConfig:
         _check(self.platform < self.tile_size, "platform", "must be smaller than tile_size")
         for name in ("base", "rough_cell", "step_width"):
             _check(getattr(self, name) > 0, name, "must be > 0")
+            object.__setattr__(self, name, float(getattr(self, name)))
         _check(self.spawn_radius >= 0, "spawn_radius", "must be >= 0")
         _check(self.obstacle_count >= 0, "obstacle_count", "must be >= 0")
         for name in (*_LEVELLED, "obstacle_size"):
@@ -258,6 +271,7 @@ class Terrain:
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "corner", (float(self.corner[0]), float(self.corner[1])))
         object.__setattr__(self, "spacing", float(self.spacing))
+        object.__setattr__(self, "base", float(self.base))  # written into MJCF as text
 
     @property
     def levels(self) -> int:
@@ -426,8 +440,10 @@ def _highest(
     """The highest sample within ``r`` (along x and y) of world ``xy``."""
     nrow, ncol = h.shape
     c = (np.asarray(xy) - np.asarray(corner)) / spacing
-    lo = np.floor(c - r / spacing).astype(int)
-    hi = np.ceil(c + r / spacing).astype(int) + 1
+    # samples at most r away; the tolerance keeps float noise in c (24.000000000000004)
+    # from taking in the sample one spacing beyond r
+    lo = np.ceil(c - r / spacing - 1e-6).astype(int)
+    hi = np.floor(c + r / spacing + 1e-6).astype(int) + 1
     block = h[max(lo[1], 0) : min(hi[1], nrow), max(lo[0], 0) : min(hi[0], ncol)]
     if block.size == 0:
         raise ValueError(f"origin {tuple(xy)} is off the terrain")
@@ -453,6 +469,10 @@ def generate(config: TerrainConfig | None = None) -> Terrain:
             tile = _Tile(u, v, ring, c, level, np.random.default_rng([c.seed, level, col]))
             r0, c0 = nb + level * n, nb + col * n
             heights[r0 : r0 + n, c0 : c0 + n] = _TILES[kind](tile)
+    # the origins once every tile is drawn: a spawn_radius may reach a neighbouring tile
+    for level in range(c.levels):
+        for col in range(len(c.types)):
+            r0, c0 = nb + level * n, nb + col * n
             xy = (corner[0] + (c0 + n / 2) * c.spacing, corner[1] + (r0 + n / 2) * c.spacing)
             origins[level, col] = (*xy, _highest(heights, corner, c.spacing, xy, c.spawn_radius))
     return Terrain(heights, c.spacing, corner, origins, tuple(c.types), c, base=c.base)

@@ -237,6 +237,61 @@ def test_bad_config_is_one_clear_error(kwargs: dict, message: str) -> None:
         TerrainConfig(**kwargs)
 
 
+def test_the_spawn_height_reads_the_ground_within_the_radius_only() -> None:
+    # 5-cm stairs: the tile's centre lands where float noise once took in the riser 0.3 m
+    # away (a sample past the 0.25 m radius), spawning the body 8 cm high at level 1
+    c = TerrainConfig(
+        levels=2, types=("stairs_up",), spacing=0.05, tile_size=2.0, platform=0.5,
+        border=0.2, step_width=0.05, spawn_radius=0.25,
+    )  # fmt: skip
+    t = generate(c)
+    for level in range(c.levels):
+        x, y, z = t.origins[level, 0]
+        near = (np.abs(_xs(t) - x) <= c.spawn_radius + 1e-6)[None, :] & (
+            np.abs(_ys(t) - y) <= c.spawn_radius + 1e-6
+        )[:, None]
+        assert z == pytest.approx(t.heights[near].max(), abs=1e-6)
+
+
+def test_a_spawn_radius_past_the_tile_sees_its_neighbours() -> None:
+    # the origins are taken once every tile is drawn, not while later tiles are still 0
+    c = TerrainConfig(
+        levels=2, types=("flat", "obstacles"), tile_size=1.0, platform=0.5, border=0.25,
+        spawn_radius=0.6, obstacle_height=(0.05, 0.1), obstacle_count=20,
+    )  # fmt: skip
+    t = generate(c)
+    for level in range(c.levels):
+        for j in range(len(c.types)):
+            x, y, z = t.origins[level, j]
+            near = (np.abs(_xs(t) - x) <= c.spawn_radius + 1e-6)[None, :] & (
+                np.abs(_ys(t) - y) <= c.spawn_radius + 1e-6
+            )[:, None]
+            assert z == pytest.approx(t.heights[near].max(), abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"seed": -1}, "seed"),
+        ({"levels": 2.5}, "levels"),
+        ({"obstacle_count": 3.5}, "obstacle_count"),
+        ({"types": "flat"}, "types"),
+    ],
+)
+def test_integers_and_the_seed_are_checked(kwargs: dict, message: str) -> None:
+    with pytest.raises(TerrainConfigError, match=message):
+        TerrainConfig(**kwargs)
+
+
+def test_types_and_numpy_scalars_are_normalised() -> None:
+    given = TerrainConfig(types=["flat", "stairs_up"], levels=np.int64(2), base=np.float64(0.2))
+    assert given.types == ("flat", "stairs_up") and hash(given) == hash(
+        TerrainConfig(types=("flat", "stairs_up"), levels=2, base=0.2)
+    )
+    small = dataclasses.replace(given, tile_size=1.0, platform=0.5, border=0.25)
+    assert model_of(generate(small)).hfield_size[0, 3] == pytest.approx(0.2)  # MJCF parses
+
+
 def test_a_pair_given_as_a_list_or_an_array_is_kept_as_a_tuple() -> None:
     given = TerrainConfig(slope=[0.0, 0.3], pit_depth=np.array([0.02, 0.1]))
     assert given == TerrainConfig(slope=(0.0, 0.3), pit_depth=(0.02, 0.1))

@@ -364,6 +364,7 @@ def test_the_gait_prior_lifts_each_tripod_in_turn() -> None:
         ("spawn_types", ("lava",)),
         ("max_init_level", 4),
         ("tile_size", 3.01),
+        ("terrain_seed", -1),
         ("terrain_border", 0.01),
         ("terrain_types", ("flat", "moon")),
         ("terrain_spacing", 0.0),
@@ -374,6 +375,19 @@ def test_bad_config_is_named(field, value) -> None:
     config = JoystickRoughConfig(**{**SMALL, field: value})
     with pytest.raises(ConfigError, match=field):
         config.validate()
+
+
+def test_a_tile_smaller_than_the_generators_platform_is_named() -> None:
+    with pytest.raises(ConfigError, match="key 'tile_size'"):
+        JoystickRoughConfig(**{**SMALL, "tile_size": 0.5}).validate()  # the platform: 0.8 m
+
+
+def test_a_task_built_directly_names_its_bad_terrain_key() -> None:
+    # the terrain is generated in __init__, before the env's own validate(): the config's
+    # terrain fields are checked first, so the error names the task's key, not the
+    # generator's (TerrainConfig.types)
+    with pytest.raises(ConfigError, match="terrain_types"):
+        HexapodJoystickRough(JoystickRoughConfig(**{**SMALL, "terrain_types": ("flat", "moon")}))
 
 
 # ------------------------------------------------------------ the level in the run's figures

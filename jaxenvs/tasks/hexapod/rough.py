@@ -121,6 +121,8 @@ _TERRAIN_FIELDS = {
     "border": "terrain_border",
     "seed": "terrain_seed",
     "spacing": "terrain_spacing",
+    # the generator's flat platform (0.8 m) must fit in the task's tile
+    "platform": "tile_size",
 }
 
 
@@ -319,6 +321,7 @@ class TerrainTask(HexapodTask[Any]):
         programs read of it: the heightfield, the tiles' origins and the columns an env
         may be given, each on the default device once (one constant of every compiled
         program, however many queries read it). Returns the terrain, the scene's ground."""
+        config.validate_terrain()  # before generating: a ConfigError names the task's key
         self._terrain_fields = config
         self.terrain = terrain_of(config.terrain_config())
         self.field = HeightField(*(jnp.asarray(x) for x in self.terrain.field()))
