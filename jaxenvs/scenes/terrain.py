@@ -11,7 +11,8 @@ neighbouring tiles meet without a cliff (obstacles and stepping stones aside). T
 * ``smooth_slope``: a square pyramid of slope ``slope`` rising from the edge to the
   platform (a hill) or falling to it (a bowl), the sign drawn per tile.
 * ``rough_slope``: the same plus uniform noise of half-amplitude ``roughness`` on a
-  lattice of ``rough_cell``, interpolated, fading out over the last cell before the edge.
+  lattice of ``rough_cell``, interpolated, fading out over the last cell before the edge;
+  the noise covers the platform too (its only tile whose platform is not flat).
 * ``stairs_up``: concentric steps of ``step_height`` and tread ``step_width`` rising from
   the platform (a pit) to the edge: walking out of the centre climbs.
 * ``stairs_down``: the same descending from the platform (a summit) to the edge.
