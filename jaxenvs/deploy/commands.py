@@ -118,6 +118,7 @@ class CommandInput:
         self._lock = threading.Lock()
         self._value: np.ndarray | None = None
         self._script: list[tuple[float, np.ndarray]] = []
+        self._stdin_closed = threading.Event()
         #: the task input's size and range, once :meth:`expect` said them
         self.size: int | None = None
         self.range: InputRange | None = None
@@ -155,15 +156,24 @@ class CommandInput:
         return value if why is None else f"outside the task's range: {why}"
 
     def _read_stdin(self) -> None:
-        for line in sys.stdin:
-            if not line.strip():
-                continue
-            value = self._typed(line)
-            if isinstance(value, str):
-                print(f"ignored command {line.strip()[:80]!r}: {value}", file=sys.stderr)
-                continue
-            with self._lock:
-                self._value = value
+        try:
+            for line in sys.stdin:
+                if not line.strip():
+                    continue
+                value = self._typed(line)
+                if isinstance(value, str):
+                    print(f"ignored command {line.strip()[:80]!r}: {value}", file=sys.stderr)
+                    continue
+                with self._lock:
+                    self._value = value
+        finally:
+            self._stdin_closed.set()
+
+    @property
+    def exhausted(self) -> bool:
+        """No input will come any more (``-``: standard input has ended; the last typed
+        value, if any, holds)."""
+        return self._stdin_closed.is_set()
 
     def at(self, t: float) -> np.ndarray | None:
         """The input ``t`` seconds after the start (``None`` before the first)."""

@@ -16,6 +16,7 @@ none was given, asks for none when one was, or does not prove it holds it.
 
 from __future__ import annotations
 
+import math
 import socket
 import time
 from collections import Counter
@@ -26,6 +27,10 @@ import numpy as np
 from jaxenvs.deploy import auth, wire
 from jaxenvs.deploy.simrobot import parse_address
 from jaxenvs.robots.interface import LinkError, RobotSpec, SensorFrame
+
+#: how long one poll of the link goes on reading once it has read something (s): what
+#: arrives faster waits in the socket for the next poll
+POLL_SECONDS = 0.005
 
 
 class TcpRobot:
@@ -199,13 +204,17 @@ class TcpRobot:
         return self._pending.pop(0)
 
     def _poll(self, block: float = 0.0) -> None:
-        """Read whatever has arrived (waiting up to ``block`` s for the first bytes)."""
+        """Read what has arrived (waiting up to ``block`` s for the first bytes), for at
+        most :data:`POLL_SECONDS` after the first read: a robot that floods the link
+        cannot keep the caller from its own deadlines (the loop's sensor timeout,
+        ``close``'s wait)."""
         assert self.sock is not None
         pending, self._pending = self._pending, []
         for msg in pending:
             self._handle(msg, time.monotonic())
         self.sock.settimeout(block if block > 0 else 0.0)
-        while True:
+        until = math.inf
+        while time.monotonic() < until:
             try:
                 data = self.sock.recv(1 << 16)
             except (BlockingIOError, TimeoutError, InterruptedError):
@@ -218,6 +227,7 @@ class TcpRobot:
                 if self._ended:
                     return
                 raise LinkError("the robot closed the link")
+            until = min(until, time.monotonic() + POLL_SECONDS)
             for msg in self._feed(data):
                 self._handle(msg, time.monotonic())
             self.sock.settimeout(0.0)

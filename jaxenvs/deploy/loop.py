@@ -331,6 +331,8 @@ def _first_frame(link: Any, st: _Step, rec: Record, opts: LoopOptions, log: Any)
     if st.commands is not None and st.host.needs_input and st.commands.at(0.0) is None:
         print("type the task input (v1 v2 ...) to start", file=sys.stderr, flush=True)
         while st.commands.at(0.0) is None:
+            if st.commands.exhausted and st.commands.at(0.0) is None:  # set before ended
+                raise DeployError("standard input ended before the first task input")
             time.sleep(0.01)
     end = time.monotonic() + opts.first_frame_s
     truth = getattr(link, "privileged", False)

@@ -29,6 +29,7 @@ One client at a time; each connection starts a new episode from the next initial
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import heapq
 import itertools
@@ -161,6 +162,11 @@ class _Episode:
                 self.data.ctrl[:] = self.ctrl_of(action)
                 self.last_cmd_step = self.frames
             elif kind == "hold":
+                # its seq is above every command sent before it: one of those arriving
+                # late (reordered by the link's jitter) is stale, and cannot undo the hold
+                held_at = msg.get("seq")
+                if isinstance(held_at, int) and not isinstance(held_at, bool):
+                    self.last_cmd = max(self.last_cmd, held_at)
                 self.hold()
             elif kind == "bye":
                 self.closed = "bye"
@@ -253,7 +259,11 @@ def answer_challenge(conn: socket.socket, key: bytes, reader: wire.FrameReader) 
     ``conn``: send a challenge, read the answer; the hello's ``mac`` when the client proved
     it holds ``key``, else ``{"refused": why}``."""
     robot_nonce = auth.nonce()
-    conn.sendall(wire.encode({"type": "challenge", "version": wire.VERSION, "nonce": robot_nonce}))
+    challenge = {"type": "challenge", "version": wire.VERSION, "nonce": robot_nonce}
+    try:
+        conn.sendall(wire.encode(challenge))
+    except OSError:  # a client gone before the challenge proved nothing: refused
+        return {"refused": "link lost"}
     msg = _first(conn, reader, time.monotonic() + auth.AUTH_TIMEOUT)
     if isinstance(msg, str):
         return {"refused": msg}
@@ -277,7 +287,10 @@ def run_episode(
     ep = _Episode(world, start, conn)
     mac = None
     if key is not None:
-        answer = answer_challenge(conn, key, ep.reader)
+        try:
+            answer = answer_challenge(conn, key, ep.reader)
+        except Exception as err:  # noqa: BLE001 - a broken handshake proved nothing
+            answer = {"refused": f"handshake failed ({type(err).__name__})"}
         if isinstance(answer, dict):
             ep.closed, ep.refused = answer["refused"], True
             ep.send_now(wire.encode({"type": "bye", "reason": ep.closed}))
@@ -348,7 +361,8 @@ def _serve_one(
     """One connection, whatever it sends; a failure the episode did not expect ends the
     connection (held, counted as ``internal_error``), never the listener."""
     try:
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        with contextlib.suppress(OSError):  # a client already gone: the episode says so
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         return run_episode(world, conn, start, opts, key)
     except Exception as err:  # noqa: BLE001 (the listener outlives any one client)
         ep = _Episode(world, start, conn)

@@ -5,6 +5,7 @@ deploy runs in this process (``cli.main``)."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import json
 import select
@@ -169,6 +170,55 @@ def test_hold_carries_a_seq_above_every_command(capsys, policy, spec, tmp_path):
     commands, (hold,) = robot.of("command"), robot.of("hold")
     assert len(commands) == 15 and hold["seq"] == commands[-1]["seq"] + 1 == 15
     assert hold["reason"] == "done" and s["round_trip_ms_p50"] > 0
+
+
+def test_a_robot_flooding_the_link_with_stale_frames_is_a_hold(capsys, policy, spec, tmp_path):
+    """A robot that, after a few fresh frames, sends its last one again without pause
+    (each counted stale and dropped): the loop used to read on for as long as bytes came,
+    never reaching its sensor timeout. Now a poll reads a bounded amount, the timeout
+    fires, the robot is told to hold and the run ends. (The flood stops by itself after
+    30 s, so that a loop that reads on fails this test instead of hanging it.)"""
+    server = socket.create_server(("127.0.0.1", 0))
+    received: list[dict] = []
+    flooding: list[float] = []
+
+    def serve() -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.sendall(wire.encode({"type": "hello", "version": 1, **spec}))
+            readings = {s["name"]: [0.0] * s["size"] for s in spec["sensors"]}
+
+            def read() -> None:
+                reader = wire.FrameReader()
+                with contextlib.suppress(OSError):
+                    while data := conn.recv(1 << 16):
+                        received.extend(reader.feed(data))
+
+            threading.Thread(target=read, daemon=True).start()
+            for k in range(10):
+                frame = wire.encode(wire.sensors(k, k * 0.02, -1, readings))
+                conn.sendall(frame)
+                time.sleep(0.02)
+            flooding.append(time.monotonic())
+            with contextlib.suppress(OSError):  # until the loop closes the link
+                while time.monotonic() < flooding[0] + 30:
+                    conn.sendall(frame * 2000)
+
+    threading.Thread(target=serve, daemon=True).start()
+    summary = tmp_path / "s.json"
+    argv = ["deploy", str(policy), "--env", "CartPole-v0", "--robot"]
+    argv += [f"tcp://127.0.0.1:{server.getsockname()[1]}", "--seconds", "20"]
+    try:
+        code = cli.main([*argv, "--summary", str(summary)])
+    finally:
+        server.close()
+    took = time.monotonic() - flooding[0]
+    err = capsys.readouterr().err
+    # the sensor timeout, or on a loaded machine the step's deadline: a hold either way
+    assert code == 1 and ("no sensor message" in err or "overrun" in err), err
+    assert took < 10, f"the loop read the flood for {took:.1f} s"
+    assert any(m["type"] == "hold" for m in received)
+    assert json.loads(summary.read_text())["bad_messages"]["stale"] > 0
 
 
 # ---------------------------------------------------------------- what the robot declares
@@ -384,3 +434,39 @@ def test_export_refuses_an_out_named_as_the_other_format_and_names_the_seed_rang
     assert cli.main(["export", str(run), "--format", "npz", "--seed", "-1"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"jaxenvs export: error: --seed must be between 0 and 0 for {run}"
+
+
+@pytest.mark.parametrize("typed", ["", "oops\n", "0.1 0.2\n"])
+def test_standard_input_ending_before_a_task_input_is_one_line(monkeypatch, typed):
+    """``--command -`` with standard input at its end before any valid input (a closed
+    pipe, ``</dev/null``): the loop used to wait for it for ever; now one line says so.
+    Input typed before the end still starts the run."""
+    import io
+    import types
+
+    from jaxenvs.deploy import loop
+    from jaxenvs.deploy.commands import CommandInput
+
+    monkeypatch.setattr("sys.stdin", io.StringIO(typed))
+    st = types.SimpleNamespace(
+        commands=CommandInput("-"), host=types.SimpleNamespace(needs_input=True), truth=None
+    )
+    link = types.SimpleNamespace(latest=lambda: "a frame", privileged=False)
+    opts = types.SimpleNamespace(first_frame_s=1.0)
+    errors: list[BaseException] = []
+
+    def wait() -> None:
+        try:
+            loop._first_frame(link, st, None, opts, None)
+        except loop.DeployError as err:
+            errors.append(err)
+
+    run = threading.Thread(target=wait, daemon=True)
+    run.start()
+    run.join(10)
+    assert not run.is_alive(), "the loop still waits for input that cannot come"
+    assert st.commands.exhausted
+    if typed.startswith("0.1"):
+        assert not errors and st.commands.at(0.0).tolist() == pytest.approx([0.1, 0.2])
+    else:
+        assert [str(e) for e in errors] == ["standard input ended before the first task input"]

@@ -185,6 +185,17 @@ def test_sim_robot_gives_nothing_to_a_client_without_the_key(world, answer, monk
     assert ep.closed.startswith(want)
 
 
+def test_a_client_gone_before_the_challenge_is_refused(world):
+    """A client that resets the link before the challenge goes out (sending it fails)
+    proved nothing: refused, so ``jaxenvs robot --once`` keeps waiting for its owner
+    (it used to count the stranger as its one client and exit)."""
+    ours, theirs = socket.socketpair()
+    theirs.close()
+    with ours:
+        ep = simrobot.run_episode(world, ours, world.starts[0], simrobot.LinkOptions(), KEY)
+    assert ep.refused and ep.closed == "link lost" and ep.frames == 0
+
+
 # ------------------------------------------------------------------------- the loop's side
 def _serve_once(handler) -> tuple[str, threading.Thread, socket.socket]:
     server = socket.create_server(("127.0.0.1", 0))

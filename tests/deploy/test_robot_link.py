@@ -286,3 +286,17 @@ def test_a_spec_checks_every_declared_field_actuator_limits_included():
     hello["sensors"][0]["size"] = 1e400
     with pytest.raises(ValueError, match="bad robot description"):
         RobotSpec.from_json(hello)
+
+
+def test_a_command_arriving_after_the_hold_sent_after_it_is_stale(world):
+    """The link's jitter can deliver a command after the hold the loop sent after it (the
+    hold's seq is above every command's): the robot stays held, the command counted
+    stale (it used to be applied, driving the robot again)."""
+    ep = simrobot._Episode(world, world.starts[0], None)
+    ep.handle(wire.command(0, np.array([1.0])))
+    ep.handle({"type": "hold", "seq": 2, "reason": "policy not finite"})
+    ep.handle(wire.command(1, np.array([1.0])))  # sent before the hold, arriving after it
+    assert ep.held and ep.data.ctrl[0] == ep.ctrl_of(np.zeros(1))[0]
+    assert ep.counts["stale"] == 1
+    ep.handle(wire.command(3, np.array([0.5])))  # a newer command still drives it
+    assert not ep.held and ep.data.ctrl[0] == pytest.approx(ep.ctrl_of(np.array([0.5]))[0])
