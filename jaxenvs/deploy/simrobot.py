@@ -289,8 +289,8 @@ def run_episode(
     if key is not None:
         try:
             answer = answer_challenge(conn, key, ep.reader)
-        except Exception as err:  # noqa: BLE001 - a broken handshake proved nothing
-            answer = {"refused": f"handshake failed ({type(err).__name__})"}
+        except OSError as err:  # the link broke in the handshake: nothing was proved
+            answer = {"refused": f"link lost ({type(err).__name__})"}
         if isinstance(answer, dict):
             ep.closed, ep.refused = answer["refused"], True
             ep.send_now(wire.encode({"type": "bye", "reason": ep.closed}))

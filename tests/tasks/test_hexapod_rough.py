@@ -368,6 +368,7 @@ def test_the_gait_prior_lifts_each_tripod_in_turn() -> None:
         ("terrain_border", 0.01),
         ("terrain_types", ("flat", "moon")),
         ("terrain_spacing", 0.0),
+        ("terrain_spacing", 0.5),  # the generator's 0.8 m platform no whole number of it
         ("hfield_contact", "prisms"),
     ],
 )

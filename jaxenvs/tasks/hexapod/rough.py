@@ -121,8 +121,6 @@ _TERRAIN_FIELDS = {
     "border": "terrain_border",
     "seed": "terrain_seed",
     "spacing": "terrain_spacing",
-    # the generator's flat platform (0.8 m) must fit in the task's tile
-    "platform": "tile_size",
 }
 
 
@@ -196,7 +194,10 @@ class TerrainFields:
         try:  # what remains: the tile's size and the border against the sample spacing
             self.terrain_config()
         except TerrainConfigError as err:
-            require(False, _TERRAIN_FIELDS.get(err.field, err.field), str(err))
+            key = _TERRAIN_FIELDS.get(err.field, err.field)
+            if err.field == "platform":  # the generator's 0.8 m platform, not a task key
+                key = "tile_size" if "smaller than tile_size" in str(err) else "terrain_spacing"
+            require(False, key, str(err))
         require(
             0 <= self.min_init_level <= self.max_init_level < self.levels,
             "max_init_level",
