@@ -287,10 +287,7 @@ def run_episode(
     ep = _Episode(world, start, conn)
     mac = None
     if key is not None:
-        try:
-            answer = answer_challenge(conn, key, ep.reader)
-        except OSError as err:  # the link broke in the handshake: nothing was proved
-            answer = {"refused": f"link lost ({type(err).__name__})"}
+        answer = answer_challenge(conn, key, ep.reader)
         if isinstance(answer, dict):
             ep.closed, ep.refused = answer["refused"], True
             ep.send_now(wire.encode({"type": "bye", "reason": ep.closed}))
