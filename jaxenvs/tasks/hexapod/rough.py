@@ -121,6 +121,9 @@ _TERRAIN_FIELDS = {
     "border": "terrain_border",
     "seed": "terrain_seed",
     "spacing": "terrain_spacing",
+    # the generator's platform is no task key; with the tile checked against it (in
+    # validate_terrain), only its whole number of samples can fail: the spacing's
+    "platform": "terrain_spacing",
 }
 
 
@@ -191,13 +194,16 @@ class TerrainFields:
         require(self.levels >= 1, "levels", "must be >= 1")
         unknown = sorted(set(self.terrain_types) - set(TYPES))
         require(bool(self.terrain_types) and not unknown, "terrain_types", f"unknown {unknown}")
+        platform = TerrainConfig.platform
+        require(
+            self.tile_size > platform,
+            "tile_size",
+            f"must be larger than the generator's {platform:g} m platform",
+        )
         try:  # what remains: the tile's size and the border against the sample spacing
             self.terrain_config()
         except TerrainConfigError as err:
-            key = _TERRAIN_FIELDS.get(err.field, err.field)
-            if err.field == "platform":  # the generator's 0.8 m platform, not a task key
-                key = "tile_size" if "smaller than tile_size" in str(err) else "terrain_spacing"
-            require(False, key, str(err))
+            require(False, _TERRAIN_FIELDS.get(err.field, err.field), str(err))
         require(
             0 <= self.min_init_level <= self.max_init_level < self.levels,
             "max_init_level",
