@@ -147,12 +147,15 @@ def test_origins_on_their_tiles(small: Terrain) -> None:
             xmin, xmax, ymin, ymax = f.tile_bounds(level, j)
             assert (x, y) == pytest.approx(((xmin + xmax) / 2, (ymin + ymax) / 2), abs=1e-5)
             # the highest ground within spawn_radius of the centre
-            near = (np.abs(_xs(f) - x) <= c.spawn_radius + 1e-6)[None, :] & (
-                np.abs(_ys(f) - y) <= c.spawn_radius + 1e-6
-            )[:, None]
+            near = _near(f, x, y, c.spawn_radius)
             assert z == pytest.approx(f.heights[near].max(), abs=1e-6)
             if f.types[j] != "rough_slope":  # a flat platform under the spawn
                 assert f.heights[near].min() == pytest.approx(z, abs=1e-6)
+
+
+def _near(t: Terrain, x: float, y: float, r: float) -> np.ndarray:
+    """The samples within ``r`` of ``(x, y)`` along x and y (a mask of ``t.heights``)."""
+    return (np.abs(_xs(t) - x) <= r + 1e-6)[None, :] & (np.abs(_ys(t) - y) <= r + 1e-6)[:, None]
 
 
 def _xs(t: Terrain) -> np.ndarray:
@@ -247,10 +250,7 @@ def test_the_spawn_height_reads_the_ground_within_the_radius_only() -> None:
     t = generate(c)
     for level in range(c.levels):
         x, y, z = t.origins[level, 0]
-        near = (np.abs(_xs(t) - x) <= c.spawn_radius + 1e-6)[None, :] & (
-            np.abs(_ys(t) - y) <= c.spawn_radius + 1e-6
-        )[:, None]
-        assert z == pytest.approx(t.heights[near].max(), abs=1e-6)
+        assert z == pytest.approx(t.heights[_near(t, x, y, c.spawn_radius)].max(), abs=1e-6)
 
 
 def test_a_spawn_radius_past_the_tile_sees_its_neighbours() -> None:
@@ -263,10 +263,7 @@ def test_a_spawn_radius_past_the_tile_sees_its_neighbours() -> None:
     for level in range(c.levels):
         for j in range(len(c.types)):
             x, y, z = t.origins[level, j]
-            near = (np.abs(_xs(t) - x) <= c.spawn_radius + 1e-6)[None, :] & (
-                np.abs(_ys(t) - y) <= c.spawn_radius + 1e-6
-            )[:, None]
-            assert z == pytest.approx(t.heights[near].max(), abs=1e-6)
+            assert z == pytest.approx(t.heights[_near(t, x, y, c.spawn_radius)].max(), abs=1e-6)
 
 
 @pytest.mark.parametrize(
