@@ -1,5 +1,5 @@
 import sys
 
-from jaxenvs.cli import main
+from jaxenvs.cli import entry
 
-sys.exit(main())
+sys.exit(entry())

@@ -3,6 +3,7 @@ user errors are one line naming the key, flag or file (a traceback under ``--deb
 
 from __future__ import annotations
 
+import gc
 import json
 import subprocess
 import sys
@@ -244,6 +245,22 @@ def test_cli_error_exit_in_a_real_process(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr
     assert "jaxenvs train: error: unknown env id 'NoSuchEnv-v7'" in proc.stderr
+
+
+def test_entry_returns_main_code_and_freezes_the_collector(monkeypatch):
+    """The process entry (script and ``python -m``) is :func:`cli.entry`: main's exit code,
+    with the objects alive at the end frozen out of the collector for the exit."""
+    from importlib.metadata import entry_points
+
+    (script,) = entry_points(group="console_scripts", name="jaxenvs")
+    assert script.value == "jaxenvs.cli:entry"
+    monkeypatch.setattr(cli, "main", lambda: 3)
+    before = gc.get_freeze_count()
+    try:
+        assert cli.entry() == 3
+        assert gc.get_freeze_count() > before
+    finally:
+        gc.unfreeze()
 
 
 HUGE = 99999999999999999999999
