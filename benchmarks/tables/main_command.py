@@ -147,4 +147,5 @@ TABLES = {
         ("main_command_cpu2_init_once",),
         fair_peer_ratios,
     ),
+    "main-command-ratios-startup-cpu2": Table(("main_command_cpu2_startup",), fair_peer_ratios),
 }
