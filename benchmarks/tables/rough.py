@@ -278,6 +278,7 @@ TABLES = {
     "rough-training-w200": Table(("ppo_joystick_rough_seeds_w200_h200",), rough_training),
     "rough-probes-w200": Table(("ppo_joystick_rough_seeds_w200_h200",), rough_probes),
     "rough-probes-link": Table(("ppo_joystick_rough_link_h200",), rough_probes),
+    "rough-tracking-link": Table(("ppo_joystick_rough_link_h200",), rough_tracking),
     "rough-tracking-sag-seeds": Table(("ppo_joystick_rough_seeds_sag_h200",), rough_tracking),
     "rough-training-gait-seeds": Table(("ppo_joystick_rough_seeds_gait_h200",), rough_training),
     "rough-tracking-gait-seeds": Table(("ppo_joystick_rough_seeds_gait_h200",), rough_tracking),
