@@ -475,7 +475,7 @@ def _encode_mp4(
         try:
             try:
                 for frame in frames:
-                    proc.stdin.write(np.ascontiguousarray(frame).data.cast("B"))
+                    proc.stdin.write(np.ascontiguousarray(frame).reshape(-1).data)
             except BrokenPipeError:  # ffmpeg quit early: its exit status and log say why
                 broken = True
             with contextlib.suppress(BrokenPipeError):
