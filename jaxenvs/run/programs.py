@@ -5,7 +5,10 @@
 compiled on a background thread once the first chunk has compiled. On an accelerator a
 trainer's chunk that comes in stages runs as their programs (:class:`StagedChunk`), whose
 compiles overlap. It is cached per config; across processes, JAX's persistent compile
-cache (:mod:`jaxenvs.run.compile_cache`) skips the compiles.
+cache (:mod:`jaxenvs.run.compile_cache`) skips the compiles, and where it is on, a run on
+one device whose chunk is one program keeps its three programs traced beside it
+(:mod:`jaxenvs.run.program_store`, :func:`program_store_for`), so that a later run skips
+tracing them too.
 """
 
 from __future__ import annotations
@@ -20,10 +23,12 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from jaxenvs import registry
 from jaxenvs.agents.base import Stages, Trainer
 from jaxenvs.core import Env
 from jaxenvs.core.xla import jit, jit_once
 from jaxenvs.physics.figures import figures_for
+from jaxenvs.run import compile_cache, program_store
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.placement import mesh_programs, run_mesh
 from jaxenvs.run.run_config import ResolvedConfig, build, seed_keys
@@ -201,20 +206,84 @@ def build_programs(
         trainer, init_fn, chunk_fn, compile_evaluate = mesh_programs(resolved, env, trainer, mesh)
         return Programs(env, trainer, init_fn, chunk_fn, BackgroundCompile(compile_evaluate))
     seeds = resolved.train.num_seeds
-    init_fn = jit_once(over_seeds(trainer.init, seeds))
     if staged is None:
         staged = default_staged()
-    if staged and trainer.stages is not None:
+    staged = staged and trainer.stages is not None
+    evaluator = jax.vmap(make_evaluator(env, trainer.act, resolved.train.eval_episodes), (0, None))
+    keys = seed_keys(resolved.train.seed, seeds)
+    key_shape = jax.eval_shape(lambda: eval_key(0))
+    store = None if staged else program_store_for(resolved, env, trainer)
+    if store is not None:  # traced once, then loaded (jaxenvs.run.program_store)
+        # the training state's structure, which the stored programs' outputs refer to
+        template = jit_once(over_seeds(trainer.init, seeds)).eval_shape(keys)
+        init_fn = store(over_seeds(trainer.init, seeds), (keys,), "init", jit_once, (template,))
+        chunk_fn = store(over_seeds(trainer.chunk, seeds), (template,), "chunk", jit, (template,))
+        params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), template)
+
+        def compile_evaluate() -> Any:
+            episode = jax.eval_shape(env.reset, jax.random.key(0))  # the trajectory's structure
+            args = (params_shape, key_shape)
+            return store(evaluator, args, "eval", jit, (episode,)).lower(*args).compile()
+
+        return Programs(env, trainer, init_fn, chunk_fn, BackgroundCompile(compile_evaluate))
+    init_fn = jit_once(over_seeds(trainer.init, seeds))
+    if staged:
+        assert trainer.stages is not None
         chunk_fn = StagedChunk(trainer.stages, seeds)
     else:
         chunk_fn = jit(over_seeds(trainer.chunk, seeds))
-    evaluator = make_evaluator(env, trainer.act, resolved.train.eval_episodes)
-    keys = seed_keys(resolved.train.seed, seeds)
-    key_shape = jax.eval_shape(lambda: eval_key(0))
-    evaluate = jit(jax.vmap(evaluator, in_axes=(0, None)))
+    evaluate = jit(evaluator)
     params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), init_fn.eval_shape(keys))
     later = BackgroundCompile(lambda: evaluate.lower(params_shape, key_shape).compile())
     return Programs(env, trainer, init_fn, chunk_fn, later)
+
+
+#: modules whose tasks and trainers may have their programs stored: a stored program's key
+#: covers the package's own files only (:mod:`jaxenvs.run.program_store`)
+STORE_MODULES: tuple[str, ...] = ("jaxenvs.",)
+
+
+def program_store_for(
+    resolved: ResolvedConfig, env: Env, trainer: Trainer
+) -> Callable[..., program_store.Program] | None:
+    """``store(fn, args, name, jit, known)``, which loads ``fn``'s program traced by an earlier
+    run or traces and stores it (:func:`jaxenvs.run.program_store.load_or_export`), or
+    ``None`` where programs are not stored: while the compile cache is off, for a task or
+    trainer not defined in this package (the key covers only the package's files), and
+    for a C engine stepped through its Python callback, which an exported program cannot
+    hold."""
+    cache = compile_cache.active()
+    factory = registry.spec(resolved.env_id).factory
+    owners = (type(env).__module__, type(trainer).__module__, getattr(factory, "__module__", ""))
+    if cache is None or not all(str(m).startswith(STORE_MODULES) for m in owners):
+        return None
+    path = getattr(getattr(env.sim, "engine", None), "path", None)
+    if env.physics != "mjx" and path != "native":
+        return None
+    settings = resolved.to_dict()
+    settings["c_engine"] = path
+    # the run settings that change no program (a key without them is shared by more runs)
+    unused = ("seed", "video", "eval_every")
+    settings["train"] = {k: v for k, v in settings["train"].items() if k not in unused}
+
+    def store(
+        fn: Callable[..., Any],
+        args: tuple[Any, ...],
+        name: str,
+        jit: Callable[..., Any],
+        known: tuple[Any, ...],
+    ) -> program_store.Program:
+        return program_store.load_or_export(
+            fn,
+            args,
+            name=f"{resolved.algo}-{resolved.env_id}-{name}",
+            config=settings,
+            directory=cache / program_store.SUBDIR,
+            jit=jit,
+            known=known,
+        )
+
+    return store
 
 
 def over_seeds(fun: Callable[..., Any], num_seeds: int) -> Callable[..., Any]:

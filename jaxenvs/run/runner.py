@@ -7,7 +7,8 @@ place to import from:
   (:func:`resolve_config`), the algorithm table :data:`ALGORITHMS`, :func:`build`, and the
   names of a run directory's files.
 * :mod:`jaxenvs.run.programs`: the compiled init, chunk and evaluator of a config,
-  cached per config.
+  cached per config, and stored traced beside the compile cache
+  (:mod:`jaxenvs.run.program_store`).
 * :mod:`jaxenvs.run.loop`: :func:`train`, the chunk loop with its checkpoints, resume
   and Ctrl-C.
 * :mod:`jaxenvs.run.results`: progress.csv, the progress bar, summary.json, the
