@@ -149,4 +149,5 @@ TABLES = {
     ),
     "main-command-ratios-startup-cpu2": Table(("main_command_cpu2_startup",), fair_peer_ratios),
     "main-command-ratios-ultrafast-cpu2": Table(("main_command_cpu2_ultrafast",), fair_peer_ratios),
+    "main-command-ratios-store-cpu2": Table(("main_command_cpu2_store",), fair_peer_ratios),
 }
