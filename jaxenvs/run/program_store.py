@@ -34,6 +34,7 @@ import functools
 import hashlib
 import importlib.metadata
 import json
+import os
 import struct
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -65,6 +66,9 @@ TRACE_SETTINGS = (
 #: little-endian u32 header length, the JSON header (name, key, output structure), the module
 MAGIC = b"jaxenvs-program-3\n"
 _DIGEST = 32
+#: the store's size limit: past it, the least recently used programs are removed (a
+#: program's file is touched each time it is loaded)
+MAX_BYTES = 512 * 1024**2
 
 
 def source_files() -> list[Path]:
@@ -291,6 +295,8 @@ def _load(
             raise DamagedProgram("tree structures do not match the module")
         program = _wrap(exported, in_tree, out_tree, jit, loaded=True)
         program.lower(*program.in_shape)
+        with contextlib.suppress(OSError):
+            os.utime(path)  # recently used (prune)
         return program
     except Exception as err:  # noqa: BLE001 - any damage means: discard and trace again
         text = str(err).strip()
@@ -348,8 +354,32 @@ def load_or_export(
         blob = _pack(key, name, _describe(out_tree, known_trees), bytes(exported.serialize()))
         directory.mkdir(parents=True, exist_ok=True)
         files.write_bytes(path, blob)
+        prune(directory, MAX_BYTES)
     except (OSError, ImportError, _NotDescribable) as err:
         # the store only saves time; the program itself is fine (serialising needs the
         # ``flatbuffers`` package, a dependency of jaxenvs)
         notice(f"could not store program {path}: {err}")
     return program
+
+
+def prune(directory: Path, max_bytes: int) -> list[Path]:
+    """Remove the least recently used stored programs in ``directory`` (oldest
+    modification time first; loading one touches it) until the rest take at most
+    ``max_bytes``; returns what was removed. A file another process removes first is
+    skipped."""
+    entries = []
+    for path in directory.glob("*.jaxexport"):
+        with contextlib.suppress(OSError):
+            stat = path.stat()
+            entries.append((stat.st_mtime_ns, stat.st_size, path))
+    entries.sort()
+    total = sum(size for _, size, _ in entries)
+    removed = []
+    for _, size, path in entries:
+        if total <= max_bytes:
+            break
+        with contextlib.suppress(OSError):
+            path.unlink()
+            removed.append(path)
+        total -= size
+    return removed

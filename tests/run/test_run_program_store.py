@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from typing import NamedTuple
 
 import jax
@@ -162,6 +163,18 @@ def test_unwritable_store_still_runs_the_program(tmp_path):
             known=(_args()[0],),
         )  # fmt: skip
     _same(program(*_args()), jax.jit(_walk)(*_args()))
+
+
+def test_store_keeps_the_recently_used_within_its_size(tmp_path):
+    for name in ("a", "b", "c"):
+        (tmp_path / f"{name}.jaxexport").write_bytes(b"x" * 100)
+    os.utime(tmp_path / "a.jaxexport", ns=(1, 1))  # least recently used
+    os.utime(tmp_path / "b.jaxexport", ns=(3, 3))
+    os.utime(tmp_path / "c.jaxexport", ns=(2, 2))
+    removed = program_store.prune(tmp_path, 150)
+    assert [p.name for p in removed] == ["a.jaxexport", "c.jaxexport"]
+    assert [p.name for p in tmp_path.iterdir()] == ["b.jaxexport"]
+    assert program_store.prune(tmp_path, 150) == []
 
 
 def test_arguments_of_another_structure_are_refused(tmp_path):
