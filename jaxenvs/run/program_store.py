@@ -13,17 +13,21 @@ A stored program is looked up by a key that covers everything the trace depends 
 caller-chosen name and config, the argument shapes, dtypes and tree structure, the
 versions of jax, jaxlib, mujoco, mujoco-mjx, flax and optax, the backend and device kind,
 the JAX settings that change a trace (:data:`TRACE_SETTINGS`), and a digest of every
-source, model and config file of the jaxenvs package. Anything else a program closes over
-must be in the caller's config: :func:`jaxenvs.run.programs.build_programs` stores only
-the programs of tasks and trainers defined in this package.
+source, model and config file of the jaxenvs package (read once per process: a process
+whose package files change under it keys new programs by the old digest). Anything else
+a program closes over must be in the caller's config:
+:func:`jaxenvs.run.programs.store_settings` stores only the programs of tasks, trainers
+and configs defined in this package, and puts the engine's settings in the config.
 
 Trust. A file holds the serialised module, a JSON description of the output's tree
 structure (no pickle: custom pytree nodes in the output are described by reference to
 example structures the caller passes in, ``known``), its own key and a SHA-256 digest of
 its content, and is written atomically. A file that is truncated, altered, stored under
-another key's name, or whose module does not deserialise or lower is discarded with one
-warning and the program is traced and stored again: a damaged store costs a trace, never
-a failed run or another program.
+another key's name, or whose module does not deserialise is discarded with one warning;
+one that does not lower in this process is left with one warning; either way the program
+is traced and stored again: a damaged store costs a trace, never a failed run or another
+program. The store is bounded (:data:`MAX_BYTES`, apart from the compile cache's own
+limit), the least recently loaded programs removed first.
 """
 
 from __future__ import annotations
@@ -61,6 +65,11 @@ TRACE_SETTINGS = (
     "jax_numpy_rank_promotion",
     "jax_debug_nans",
     "jax_debug_infs",
+    "jax_use_shardy_partitioner",
+    "jax_softmax_custom_jvp",
+    "jax_enable_custom_prng",
+    "jax_legacy_prng_key",
+    "jax_threefry_gpu_kernel_lowering",
 )
 #: file layout: MAGIC, the SHA-256 digest (32 bytes) of everything after it, a
 #: little-endian u32 header length, the JSON header (name, key, output structure), the module
@@ -90,16 +99,23 @@ def source_digest() -> str:
     return h.hexdigest()
 
 
-def _environment() -> dict[str, Any]:
-    versions: dict[str, str | None] = {}
-    for name in _VERSIONED:
+@functools.lru_cache(maxsize=1)
+def _versions() -> tuple[tuple[str, str | None], ...]:
+    def version(name: str) -> str | None:
         try:
-            versions[name] = importlib.metadata.version(name)
+            return importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
-            versions[name] = None
+            return None
+
+    return tuple((name, version(name)) for name in _VERSIONED)
+
+
+def _environment() -> dict[str, Any]:
+    """The versions, device, trace settings and package digest a key covers (the
+    versions and the digest read once per process)."""
     device = jax.devices()[0]
     return {
-        "versions": versions,
+        "versions": dict(_versions()),
         "platform": device.platform,
         "device_kind": device.device_kind,
         "settings": {name: str(getattr(jax.config, name, None)) for name in TRACE_SETTINGS},
@@ -164,9 +180,12 @@ class Program:
 
 
 def _strong(x: Any) -> Any:
-    if getattr(x, "weak_type", False):
-        return jax.lax.convert_element_type(x, x.dtype)
-    return x
+    """``x`` without its weak type (an array converted, a ``ShapeDtypeStruct`` rebuilt)."""
+    if not getattr(x, "weak_type", False):
+        return x
+    if isinstance(x, jax.ShapeDtypeStruct):
+        return jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=x.sharding)
+    return jax.lax.convert_element_type(x, x.dtype)
 
 
 def _export(fn: Callable[..., Any], shapes: tuple[Any, ...]) -> tuple[Any, Any, Any]:
@@ -278,10 +297,11 @@ def _unpack(blob: bytes, key: str) -> tuple[dict[str, Any], bytes]:
 def _load(
     path: Path, key: str, in_tree: Any, known: list[Any], jit: Callable[..., Any]
 ) -> Program | None:
-    """The verified program stored at ``path``; ``None`` when there is none or it is
-    damaged (then the file is removed, with one warning). The wrapper is lowered here,
-    not at the caller's first call, so that a module that does not lower is caught by
-    this fallback too."""
+    """The verified program stored at ``path``; ``None`` when there is none, when it is
+    damaged (then the file is removed, with one warning), or when it does not lower in
+    this process (one warning; the caller traces it again and stores it over this one).
+    The wrapper is lowered here, not at the caller's first call, so that the caller's
+    fallback covers that too."""
     try:
         blob = path.read_bytes()
     except OSError:  # absent, or a store that cannot be read (its write will say so)
@@ -293,21 +313,27 @@ def _load(
         leaves = (in_tree.num_leaves, out_tree.num_leaves)
         if leaves != (len(exported.in_avals), len(exported.out_avals)):
             raise DamagedProgram("tree structures do not match the module")
-        program = _wrap(exported, in_tree, out_tree, jit, loaded=True)
-        program.lower(*program.in_shape)
-        with contextlib.suppress(OSError):
-            os.utime(path)  # recently used (prune)
-        return program
     except Exception as err:  # noqa: BLE001 - any damage means: discard and trace again
-        text = str(err).strip()
-        detail = text.splitlines()[0][:200] if text else ""
-        notice(
-            f"discarding damaged stored program {path.name} ({type(err).__name__}: "
-            f"{detail}); tracing it again"
-        )
+        why = _one_line(err)
+        notice(f"discarding damaged stored program {path.name} ({why}); tracing it again")
         with contextlib.suppress(OSError):
             path.unlink()
         return None
+    program = _wrap(exported, in_tree, out_tree, jit, loaded=True)
+    try:
+        program.lower(*program.in_shape)
+    except Exception as err:  # noqa: BLE001 - a setting of this process the key missed
+        notice(f"stored program {path.name} does not lower here ({_one_line(err)}); tracing it")
+        return None
+    with contextlib.suppress(OSError):
+        os.utime(path)  # recently used (prune)
+    return program
+
+
+def _one_line(err: BaseException) -> str:
+    """``Type: first line of the message`` (at most 200 characters of it)."""
+    text = str(err).strip()
+    return f"{type(err).__name__}: {text.splitlines()[0][:200] if text else ''}"
 
 
 def load_or_export(
@@ -319,9 +345,12 @@ def load_or_export(
     directory: str | Path,
     jit: Callable[..., Any],
     known: tuple[Any, ...] = (),
-) -> Program:
+) -> Program | None:
     """``fn`` (pure, jittable) as a :class:`Program` jitted with ``jit``, loaded from
-    ``directory`` if stored there, else traced, exported and stored.
+    ``directory`` if stored there, else traced, exported and stored; ``None`` where ``fn``
+    cannot be a stored program (the caller compiles it as usual): arguments with a
+    weakly typed leaf (the module would be traced on strong types), or a function
+    ``jax.export`` refuses (a host callback, a foreign custom call; one warning).
 
     Args:
       fn: the function; everything it closes over must be determined by ``config`` and
@@ -337,9 +366,11 @@ def load_or_export(
         lists, string-keyed dicts and None) must sit in a subtree equal to one of them;
         if not, the program is returned but not stored, with one warning.
 
-    A store that cannot be written leaves the program working, unstored, with one
-    warning.
+    A store that cannot be written, or an output that cannot be described, leaves the
+    program working, unstored, with one warning.
     """
+    if any(getattr(x, "weak_type", False) for x in jax.tree.leaves(args)):
+        return None  # exported on strong types, it would not be the program ``fn`` traces
     directory = Path(directory)
     in_tree = jax.tree.structure(args)
     known_trees = [jax.tree.structure(k) for k in known]
@@ -348,32 +379,40 @@ def load_or_export(
     stored = _load(path, key, in_tree, known_trees, jit)
     if stored is not None:
         return stored
-    exported, in_tree, out_tree = _export(fn, _shapes(args))
+    try:
+        exported, in_tree, out_tree = _export(fn, _shapes(args))
+    except Exception as err:  # noqa: BLE001 - e.g. a host callback, which jax.export refuses
+        notice(f"program {name} is not stored ({_one_line(err)}); compiled as usual")
+        return None
     program = _wrap(exported, in_tree, out_tree, jit, loaded=False)
     try:
         blob = _pack(key, name, _describe(out_tree, known_trees), bytes(exported.serialize()))
         directory.mkdir(parents=True, exist_ok=True)
         files.write_bytes(path, blob)
-        prune(directory, MAX_BYTES)
-    except (OSError, ImportError, _NotDescribable) as err:
-        # the store only saves time; the program itself is fine (serialising needs the
-        # ``flatbuffers`` package, a dependency of jaxenvs)
-        notice(f"could not store program {path}: {err}")
+        prune(directory, MAX_BYTES, keep=path)
+    except Exception as err:  # noqa: BLE001 - the store only saves time; the program is fine
+        notice(f"could not store program {path}: {_one_line(err)}")
     return program
 
 
-def prune(directory: Path, max_bytes: int) -> list[Path]:
+def prune(directory: Path, max_bytes: int, keep: Path | None = None) -> list[Path]:
     """Remove the least recently used stored programs in ``directory`` (oldest
     modification time first; loading one touches it) until the rest take at most
-    ``max_bytes``; returns what was removed. A file another process removes first is
-    skipped."""
+    ``max_bytes``, never ``keep`` (the program just stored) nor another process's file
+    still being written (a dot-named temporary); returns what was removed. A file another
+    process removes first is skipped."""
     entries = []
     for path in directory.glob("*.jaxexport"):
+        if path.name.startswith(".") or path == keep:
+            continue
         with contextlib.suppress(OSError):
             stat = path.stat()
             entries.append((stat.st_mtime_ns, stat.st_size, path))
     entries.sort()
     total = sum(size for _, size, _ in entries)
+    if keep is not None:
+        with contextlib.suppress(OSError):
+            total += keep.stat().st_size
     removed = []
     for _, size, path in entries:
         if total <= max_bytes:

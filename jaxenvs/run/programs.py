@@ -31,7 +31,7 @@ from jaxenvs.physics.figures import figures_for
 from jaxenvs.run import compile_cache, program_store
 from jaxenvs.run.evaluation import eval_key, make_evaluator
 from jaxenvs.run.placement import mesh_programs, run_mesh
-from jaxenvs.run.run_config import ResolvedConfig, build, seed_keys
+from jaxenvs.run.run_config import ALGORITHMS, ResolvedConfig, build, seed_keys
 
 PyTree = Any
 
@@ -195,6 +195,12 @@ def build_programs(
     compiled programs. Over more than one device (``devices``; ``None``:
     :func:`jaxenvs.run.placement.run_mesh`), init and chunk split the env batch over a mesh
     of them (:func:`jaxenvs.run.placement.mesh_programs`).
+
+    On one device with the chunk as one program, where :func:`program_store_for` gives a
+    store (the compile cache on, a task, trainer and configs of this package, not the C
+    engine's callback path), init, chunk and evaluator are loaded traced from it, or
+    traced and stored there; a program the store cannot hold is compiled as usual. Init
+    is traced once either way, for the training state's structure.
     """
     env, trainer = build(resolved)
     mesh = run_mesh(
@@ -209,77 +215,100 @@ def build_programs(
     if staged is None:
         staged = default_staged()
     staged = staged and trainer.stages is not None
-    evaluator = jax.vmap(make_evaluator(env, trainer.act, resolved.train.eval_episodes), (0, None))
-    keys = seed_keys(resolved.train.seed, seeds)
-    key_shape = jax.eval_shape(lambda: eval_key(0))
-    store = None if staged else program_store_for(resolved, env, trainer)
-    if store is not None:  # traced once, then loaded (jaxenvs.run.program_store)
-        # the training state's structure, which the stored programs' outputs refer to
-        template = jit_once(over_seeds(trainer.init, seeds)).eval_shape(keys)
-        init_fn = store(over_seeds(trainer.init, seeds), (keys,), "init", jit_once, (template,))
-        chunk_fn = store(over_seeds(trainer.chunk, seeds), (template,), "chunk", jit, (template,))
-        params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), template)
-
-        def compile_evaluate() -> Any:
-            episode = jax.eval_shape(env.reset, jax.random.key(0))  # the trajectory's structure
-            args = (params_shape, key_shape)
-            return store(evaluator, args, "eval", jit, (episode,)).lower(*args).compile()
-
-        return Programs(env, trainer, init_fn, chunk_fn, BackgroundCompile(compile_evaluate))
     init_fn = jit_once(over_seeds(trainer.init, seeds))
     if staged:
         assert trainer.stages is not None
         chunk_fn = StagedChunk(trainer.stages, seeds)
     else:
         chunk_fn = jit(over_seeds(trainer.chunk, seeds))
-    evaluate = jit(evaluator)
-    params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), init_fn.eval_shape(keys))
-    later = BackgroundCompile(lambda: evaluate.lower(params_shape, key_shape).compile())
-    return Programs(env, trainer, init_fn, chunk_fn, later)
+    evaluator = jax.vmap(make_evaluator(env, trainer.act, resolved.train.eval_episodes), (0, None))
+    keys = seed_keys(resolved.train.seed, seeds)
+    key_shape = jax.eval_shape(lambda: eval_key(0))
+    template = init_fn.eval_shape(keys)  # the training state's structure
+    params_shape = jax.eval_shape(jax.vmap(trainer.policy_params), template)
+    store = None if staged else program_store_for(resolved, env)
+    if store is not None:  # traced once, then loaded (jaxenvs.run.program_store)
+        stored = store(over_seeds(trainer.init, seeds), (keys,), "init", jit_once, (template,))
+        init_fn = stored or init_fn
+        stored = store(over_seeds(trainer.chunk, seeds), (template,), "chunk", jit, (template,))
+        chunk_fn = stored or chunk_fn
+
+    def compiled_evaluator() -> Any:
+        args = (params_shape, key_shape)
+        if store is not None:
+            episode = jax.eval_shape(env.reset, jax.random.key(0))  # the trajectory's structure
+            stored = store(evaluator, args, "eval", jit, (episode,))
+            if stored is not None:
+                return stored.lower(*args).compile()
+        return jit(evaluator).lower(*args).compile()
+
+    return Programs(env, trainer, init_fn, chunk_fn, BackgroundCompile(compiled_evaluator))
 
 
-#: modules whose tasks and trainers may have their programs stored: a stored program's key
-#: covers the package's own files only (:mod:`jaxenvs.run.program_store`)
+#: modules whose tasks, trainers and configs may have their programs stored: a stored
+#: program's key covers the package's own files only (:mod:`jaxenvs.run.program_store`)
 STORE_MODULES: tuple[str, ...] = ("jaxenvs.",)
 
 
-def program_store_for(
-    resolved: ResolvedConfig, env: Env, trainer: Trainer
-) -> Callable[..., program_store.Program] | None:
-    """``store(fn, args, name, jit, known)``, which loads ``fn``'s program traced by an earlier
-    run or traces and stores it (:func:`jaxenvs.run.program_store.load_or_export`), or
-    ``None`` where programs are not stored: while the compile cache is off, for a task or
-    trainer not defined in this package (the key covers only the package's files), and
-    for a C engine stepped through its Python callback, which an exported program cannot
-    hold."""
-    cache = compile_cache.active()
+def store_settings(resolved: ResolvedConfig, env: Env) -> dict[str, Any] | None:
+    """What, besides the package's files and the arguments, a run's stored programs
+    depend on: the resolved config (less the run settings that change no program) and the
+    engine (the C engine's path, threads and derived fields are attributes of its native
+    call). ``None`` where programs are not stored: for a task, trainer or config class
+    not defined in this package (the key covers only the package's files), and for a C
+    engine stepped through its Python callback, which an exported program cannot hold."""
     factory = registry.spec(resolved.env_id).factory
-    owners = (type(env).__module__, type(trainer).__module__, getattr(factory, "__module__", ""))
-    if cache is None or not all(str(m).startswith(STORE_MODULES) for m in owners):
+    owners = (
+        type(env).__module__,
+        getattr(factory, "__module__", ""),
+        ALGORITHMS[resolved.algo].module,
+        type(resolved.agent).__module__,
+        type(resolved.env).__module__,
+    )
+    if not all(str(m).startswith(STORE_MODULES) for m in owners):
         return None
-    path = getattr(getattr(env.sim, "engine", None), "path", None)
-    if env.physics != "mjx" and path != "native":
+    engine = getattr(env.sim, "engine", None)
+    if env.physics != "mjx" and getattr(engine, "path", None) != "native":
         return None
     settings = resolved.to_dict()
-    settings["c_engine"] = path
+    settings["engine"] = {
+        "physics": env.physics,
+        "path": getattr(engine, "path", None),
+        "threads": getattr(engine, "threads", None),
+        "derived": getattr(env.sim, "derived", None),
+    }
     # the run settings that change no program (a key without them is shared by more runs)
     unused = ("seed", "video", "eval_every")
     settings["train"] = {k: v for k, v in settings["train"].items() if k not in unused}
+    return settings
+
+
+def program_store_for(
+    resolved: ResolvedConfig, env: Env
+) -> Callable[..., program_store.Program | None] | None:
+    """``store(fn, args, name, wrap, known)``, which loads ``fn``'s program traced by an
+    earlier run or traces and stores it (:func:`jaxenvs.run.program_store.load_or_export`;
+    ``None`` for a program that cannot be stored), or ``None`` while the compile cache is
+    off and where :func:`store_settings` is ``None``."""
+    cache = compile_cache.active()
+    settings = store_settings(resolved, env)
+    if cache is None or settings is None:
+        return None
 
     def store(
         fn: Callable[..., Any],
         args: tuple[Any, ...],
         name: str,
-        jit: Callable[..., Any],
+        wrap: Callable[..., Any],
         known: tuple[Any, ...],
-    ) -> program_store.Program:
+    ) -> program_store.Program | None:
         return program_store.load_or_export(
             fn,
             args,
             name=f"{resolved.algo}-{resolved.env_id}-{name}",
             config=settings,
             directory=cache / program_store.SUBDIR,
-            jit=jit,
+            jit=wrap,
             known=known,
         )
 

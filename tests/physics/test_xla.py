@@ -20,6 +20,7 @@ PACKAGE = Path(jaxenvs.__file__).parent
 PLAIN_JIT = {
     "core/xla.py": "the wrapper itself",
     "core/placement.py": "spread: traced inside its caller's jit, where XLA takes no options",
+    "run/program_store.py": "jax.export's trace, never compiled (the wrapper is, by its jit)",
 }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from typing import NamedTuple
 
@@ -12,7 +13,7 @@ import pytest
 from tabular_fakes import fake_envs
 
 from jaxenvs.core.xla import jit
-from jaxenvs.run import checkpoint, compile_cache, program_store, programs, runner
+from jaxenvs.run import checkpoint, compile_cache, program_store, programs, run_config, runner
 
 
 class Carry(NamedTuple):
@@ -79,12 +80,14 @@ def test_key_covers_config_shapes_settings_and_source(tmp_path, monkeypatch):
     monkeypatch.setattr(program_store, "source_digest", lambda: "edited")
     assert key("walk", {"a": 1}, _args()) != before
     monkeypatch.undo()
-    old = jax.config.jax_default_prng_impl
-    jax.config.update("jax_default_prng_impl", "rbg")
-    try:  # a setting that changes what a trace makes
-        assert key("walk", {"a": 1}, _args()) != before
+    args = _args()
+    old = jax.config.jax_default_matmul_precision
+    jax.config.update("jax_default_matmul_precision", "highest")
+    try:  # a setting that changes what a trace makes, the arguments the same
+        assert key("walk", {"a": 1}, args) != before
     finally:
-        jax.config.update("jax_default_prng_impl", old)
+        jax.config.update("jax_default_matmul_precision", old)
+    assert key("walk", {"a": 1}, args) == before
 
 
 def test_source_digest_covers_every_subpackage():
@@ -166,15 +169,41 @@ def test_unwritable_store_still_runs_the_program(tmp_path):
 
 
 def test_store_keeps_the_recently_used_within_its_size(tmp_path):
-    for name in ("a", "b", "c"):
+    for name in ("a", "b", "c", "new", ".tmp-writing"):
         (tmp_path / f"{name}.jaxexport").write_bytes(b"x" * 100)
     os.utime(tmp_path / "a.jaxexport", ns=(1, 1))  # least recently used
     os.utime(tmp_path / "b.jaxexport", ns=(3, 3))
     os.utime(tmp_path / "c.jaxexport", ns=(2, 2))
-    removed = program_store.prune(tmp_path, 150)
+    os.utime(tmp_path / "new.jaxexport", ns=(0, 0))  # just stored: never removed
+    removed = program_store.prune(tmp_path, 250, keep=tmp_path / "new.jaxexport")
     assert [p.name for p in removed] == ["a.jaxexport", "c.jaxexport"]
-    assert [p.name for p in tmp_path.iterdir()] == ["b.jaxexport"]
-    assert program_store.prune(tmp_path, 150) == []
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == [".tmp-writing.jaxexport", "b.jaxexport", "new.jaxexport"]
+    assert program_store.prune(tmp_path, 250) == []
+
+
+def test_loading_a_program_marks_it_recently_used(tmp_path):
+    _store(tmp_path)
+    (path,) = tmp_path.glob("walk-*.jaxexport")
+    os.utime(path, ns=(1, 1))
+    assert _store(tmp_path).loaded
+    assert path.stat().st_mtime_ns > 1
+
+
+def test_weak_arguments_and_unexportable_functions_are_not_stored(tmp_path):
+    weak = program_store.load_or_export(
+        _walk, (_args()[0], jnp.asarray(0.5)), name="weak", config={}, directory=tmp_path,
+        jit=jit, known=(_args()[0],),
+    )  # fmt: skip
+    assert weak is None
+
+    def printing(carry, scale):
+        jax.debug.callback(lambda s: None, scale)  # a host callback: jax.export refuses it
+        return _walk(carry, scale)
+
+    with pytest.warns(UserWarning, match="is not stored"):
+        assert _store(tmp_path, fn=printing) is None
+    assert not list(tmp_path.glob("*.jaxexport"))
 
 
 def test_arguments_of_another_structure_are_refused(tmp_path):
@@ -197,16 +226,36 @@ def _spy(monkeypatch) -> list[tuple[str, bool]]:
     return seen
 
 
-def test_user_tasks_are_not_stored(tmp_path, monkeypatch):
-    """A task defined outside the package is not covered by the key: nothing is stored."""
+def test_user_tasks_and_algorithms_are_not_stored(tmp_path, monkeypatch):
+    """A task or an algorithm defined outside the package is not covered by the key:
+    nothing is stored."""
     monkeypatch.setattr(compile_cache, "active", lambda: tmp_path / "cache")
     with fake_envs():
         resolved = runner.resolve_config(
             "Test-Chain-v0", "qlearning", None, {"number_splits": 7, "obs_low": [0.0],
             "obs_high": [7.0]}, {}
         )  # fmt: skip
-        env, trainer = runner.build(resolved)
-        assert programs.program_store_for(resolved, env, trainer) is None
+        env, _ = runner.build(resolved)
+        assert programs.program_store_for(resolved, env) is None
+    resolved = runner.resolve_config("CartPole-v0", "qlearning", None, {"num_envs": 4}, {})
+    resolved = runner.engine_resolved(resolved)
+    env, _ = runner.build(resolved)
+    assert programs.program_store_for(resolved, env) is not None
+    user = dataclasses.replace(run_config.ALGORITHMS["qlearning"], module="my_algorithms")
+    monkeypatch.setitem(run_config.ALGORITHMS, "qlearning", user)
+    assert programs.program_store_for(resolved, env) is None
+
+
+def test_the_c_engines_threads_and_fields_are_in_the_key():
+    """The native call's thread count and derived fields are attributes of the stored
+    program, not of the config: they are in its key."""
+    resolved = runner.resolve_config("CartPole-v0", "qlearning", None, {"num_envs": 4}, {})
+    resolved = runner.engine_resolved(resolved)
+    env, _ = runner.build(resolved)
+    settings = programs.store_settings(resolved, env)
+    assert settings is not None and settings["engine"]["physics"] == "c"
+    assert settings["engine"]["threads"] == env.sim.engine.threads
+    assert "derived" in settings["engine"] and "seed" not in settings["train"]
 
 
 def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch):
@@ -226,7 +275,9 @@ def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch)
         resolved = runner.resolve_config(
             "Test-Chain-v0", "qlearning", None, agent, dict(eval_episodes=3, video=False)
         )
-        for name in ("cold", "warm"):
+        for name in ("cold", "warm", "off"):
+            if name == "off":  # the store off: the programs traced and compiled as usual
+                monkeypatch.setattr(compile_cache, "active", lambda: None)
             runner.build_programs.cache_clear()
             outs.append(tmp_path / name)
             runner.train(resolved, outs[-1], quiet=True)
@@ -236,11 +287,14 @@ def test_warm_training_run_loads_its_programs_and_matches(tmp_path, monkeypatch)
     assert sorted(seen[3:]) == [("chunk", True), ("eval", True), ("init", True)]
     stored = sorted(p.name.split("-")[-2] for p in (tmp_path / "cache/programs").iterdir())
     assert stored == ["chunk", "eval", "init"]
-    a, b = (checkpoint.read(o / runner.CHECKPOINT_FILE)[0] for o in outs)
-    for x, y in zip(a, b, strict=True):
+    assert len(seen) == 6  # nothing asked of the store with it off
+    a, b, c = (checkpoint.read(o / runner.CHECKPOINT_FILE)[0] for o in outs)
+    for x, y, z in zip(a, b, c, strict=True):
         np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(x, z)
     rows = [runner.read_progress(o / runner.PROGRESS_FILE) for o in outs]
-    assert [r["mean_return"] for r in rows[0]] == [r["mean_return"] for r in rows[1]]
+    returns = [[r["mean_return"] for r in row] for row in rows]
+    assert returns[0] == returns[1] == returns[2]
 
 
 @pytest.mark.full
