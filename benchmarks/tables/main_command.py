@@ -150,4 +150,7 @@ TABLES = {
     "main-command-ratios-startup-cpu2": Table(("main_command_cpu2_startup",), fair_peer_ratios),
     "main-command-ratios-ultrafast-cpu2": Table(("main_command_cpu2_ultrafast",), fair_peer_ratios),
     "main-command-ratios-store-cpu2": Table(("main_command_cpu2_store",), fair_peer_ratios),
+    "main-command-ratios-store-reviewed-cpu2": Table(
+        ("main_command_cpu2_store_reviewed",), fair_peer_ratios
+    ),
 }
