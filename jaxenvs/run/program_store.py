@@ -36,7 +36,6 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
-import importlib.metadata
 import json
 import os
 import struct
@@ -101,13 +100,9 @@ def source_digest() -> str:
 
 @functools.lru_cache(maxsize=1)
 def _versions() -> tuple[tuple[str, str | None], ...]:
-    def version(name: str) -> str | None:
-        try:
-            return importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            return None
+    from jaxenvs.physics.native import installed_version
 
-    return tuple((name, version(name)) for name in _VERSIONED)
+    return tuple((name, installed_version(name)) for name in _VERSIONED)
 
 
 def _environment() -> dict[str, Any]:

@@ -41,7 +41,9 @@ def _built_file() -> Path | None:
     return found[-1] if found else None
 
 
-def _version(name: str) -> str | None:
+def installed_version(name: str) -> str | None:
+    """The installed version of distribution ``name``, or ``None`` where it is not
+    installed."""
     try:
         return importlib.metadata.version(name)
     except importlib.metadata.PackageNotFoundError:
@@ -86,7 +88,7 @@ def library() -> ctypes.CDLL | None:
         zip(("jaxlib", "mujoco"), lib.jaxenvs_built_versions().decode().split(), strict=False)
     )
     for name in ("jaxlib", "mujoco"):
-        have = _version(name)
+        have = installed_version(name)
         if built.get(name) != have:
             _reason.append(
                 f"the native engine was built against {name} {built.get(name)}, this process "
