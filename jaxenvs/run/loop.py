@@ -41,6 +41,7 @@ from jaxenvs.run.results import (
     format_value,
     metric_columns,
     plot_curves,
+    preload_plotting,
     progress_postfix,
     read_progress,
     summarize,
@@ -363,8 +364,9 @@ def _loop(
         num_chunks * steps, rs.chunk * steps, quiet, f"{resolved.algo} {resolved.env_id}"
     )
     interrupted = False
-    # the video's renderer is made ready while the chunks run
+    # the video's renderer and the plot's imports are made ready while the chunks run
     video = PolicyVideo(run.programs.env, out / VIDEO_FILE, say) if resolved.train.video else None
+    preload_plotting()
     try:
         # A first Ctrl-C only asks to stop after the running chunk is committed. A second
         # one (KeyboardInterrupt inside _run_chunk) discards the chunk in flight: ``rs``

@@ -230,3 +230,25 @@ def test_the_run_names_the_steps_it_will_take(tmp_path):
     notices.clear()
     runner.train(exact, tmp_path / "exact", log=notices.append)
     assert not any("rounds up" in n for n in notices), notices
+
+
+def test_preload_plotting_imports_pyplot_on_agg_and_stays_quiet_on_failure(monkeypatch, capfd):
+    import sys
+
+    import matplotlib
+
+    from jaxenvs.run import results
+
+    results.preload_plotting().join(timeout=60)
+
+    assert matplotlib.get_backend().lower() == "agg"
+    assert "matplotlib.pyplot" in sys.modules
+
+    def broken() -> None:
+        raise ImportError("no matplotlib here")
+
+    monkeypatch.setattr(results, "_pyplot", broken)
+    thread = results.preload_plotting()
+    thread.join(timeout=60)
+    assert not thread.is_alive()
+    assert "no matplotlib here" not in capfd.readouterr().err  # plot_curves reports it
