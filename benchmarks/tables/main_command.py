@@ -153,4 +153,5 @@ TABLES = {
     "main-command-ratios-store-reviewed-cpu2": Table(
         ("main_command_cpu2_store_reviewed",), fair_peer_ratios
     ),
+    "main-command-ratios-preload-cpu2": Table(("main_command_cpu2_preload",), fair_peer_ratios),
 }
