@@ -254,5 +254,8 @@ TABLES = {
     "terrain-throughput-contacts7-h200": Table(
         ("terrain_throughput_h200_contacts7",), terrain_throughput_contacts
     ),
+    "terrain-throughput-contacts6-h200": Table(
+        ("terrain_throughput_h200_contacts6",), terrain_throughput_contacts
+    ),
     "engines-cpu16-per-device": Table(("engines_cpu16_cartpole_reacher_per_device",), cpu16_rows),
 }
