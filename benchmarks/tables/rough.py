@@ -274,6 +274,8 @@ TABLES = {
     ),
     "rough-training-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_training),
     "rough-tracking-cg": Table(("ppo_joystick_rough_seeds_cg_h200",), rough_tracking),
+    "rough-training-c6": Table(("ppo_joystick_rough_seeds_c6_h200",), rough_training),
+    "rough-tracking-c6": Table(("ppo_joystick_rough_seeds_c6_h200",), rough_tracking),
     "rough-training-sag-seeds": Table(("ppo_joystick_rough_seeds_sag_h200",), rough_training),
     "rough-training-w200": Table(("ppo_joystick_rough_seeds_w200_h200",), rough_training),
     "rough-probes-w200": Table(("ppo_joystick_rough_seeds_w200_h200",), rough_probes),
