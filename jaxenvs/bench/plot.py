@@ -7,6 +7,7 @@ from typing import Any
 
 from jaxenvs import files
 from jaxenvs.bench import MODES, is_ours
+from jaxenvs.run.results import agg_pyplot
 
 
 def plot(results: Sequence[dict[str, Any]], path: str) -> None:
@@ -15,11 +16,7 @@ def plot(results: Sequence[dict[str, Any]], path: str) -> None:
     ``results`` are :func:`jaxenvs.bench.time_runners`'s dicts (skipped peers are left
     out); the figure is written to ``path`` (PNG, or any format matplotlib knows).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = agg_pyplot()
     tasks = list(dict.fromkeys(r["task"] for r in results if not r.get("skipped")))
     fig, axes = plt.subplots(1, len(tasks), figsize=(5 * len(tasks), 4), squeeze=False)
     for ax, task in zip(axes[0], tasks, strict=True):

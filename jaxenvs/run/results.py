@@ -200,8 +200,9 @@ def learning_curve(
     return steps, ret
 
 
-def _pyplot() -> Any:
-    """``matplotlib.pyplot`` on the Agg backend (imported on first use)."""
+def agg_pyplot() -> Any:
+    """``matplotlib.pyplot`` on the Agg backend (imported on first use): what every
+    figure jaxenvs writes to a file draws with."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -223,7 +224,7 @@ def preload_plotting() -> threading.Thread:
 
 def _preload() -> None:
     try:
-        _pyplot()
+        agg_pyplot()
     except Exception:  # noqa: BLE001 - plot_curves imports again and reports the failure
         return
 
@@ -232,7 +233,7 @@ def plot_curves(run_dirs: list[Path], out: str | Path, labels: list[str] | None 
     """Return vs env steps of each run: every seed thin, the mean bold, min-max shaded;
     a run with a curriculum adds its mean :data:`LEVEL` (over seeds), dashed, on a second
     axis."""
-    plt = _pyplot()
+    plt = agg_pyplot()
 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     levels = None

@@ -244,10 +244,15 @@ def test_preload_plotting_imports_pyplot_on_agg_and_stays_quiet_on_failure(monke
     assert matplotlib.get_backend().lower() == "agg"
     assert "matplotlib.pyplot" in sys.modules
 
+    called: list[str] = []  # the thread itself imports (pyplot may be in sys.modules already)
+    monkeypatch.setattr(results, "agg_pyplot", lambda: called.append("pyplot"))
+    results.preload_plotting().join(timeout=60)
+    assert called == ["pyplot"]
+
     def broken() -> None:
         raise ImportError("no matplotlib here")
 
-    monkeypatch.setattr(results, "_pyplot", broken)
+    monkeypatch.setattr(results, "agg_pyplot", broken)
     thread = results.preload_plotting()
     thread.join(timeout=60)
     assert not thread.is_alive()
