@@ -212,7 +212,8 @@ def terrain_throughput_contacts(recs: list[Rec]) -> Cells:
 
     def cells(r: Row) -> list[str]:
         flat, cap = r["variant"] == "flat", r.get("max_contacts")
-        kept = "-" if flat else "the config's (8)" if cap is None else str(cap or "all 24")
+        default = "8 (the task's default then)"
+        kept = "-" if flat else default if cap is None else str(cap or "all 24")
         return [
             r["task"],
             kept,

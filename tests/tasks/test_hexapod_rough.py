@@ -32,6 +32,7 @@ from jaxenvs.tasks.hexapod.rough import (
     JoystickRoughConfig,
     RoughCarry,
 )
+from jaxenvs.tasks.hexapod.walk_rough import WalkRoughConfig
 
 ID = "HexapodJoystickRough-v0"
 SMALL = {"levels": 4, "terrain_types": ("flat", "stairs_up", "stairs_down")}
@@ -111,13 +112,15 @@ def test_no_episode_walks_off_the_field(env) -> None:
     assert reach > 9.0 and margin.min() > reach + 0.3 + 1.0
 
 
-def test_mjx_keeps_the_eight_deepest_contacts(env) -> None:
-    """The rough task's MJX model carries its contact budget (8 of the feet's 24 slots on
-    the heightfield: ``max_contacts``); the flat joystick's carries none, and 0 lifts it."""
+def test_mjx_keeps_the_six_deepest_contacts(env) -> None:
+    """The rough joystick's MJX model carries its contact budget (6 of the feet's 24 slots
+    on the heightfield: ``max_contacts``), the terrain tasks' field whose default (the
+    walker's) is 8; the flat joystick's carries none, and 0 lifts it."""
     numeric = mujoco.mjtObj.mjOBJ_NUMERIC
     rough = HexapodJoystickRough(dataclasses.replace(env.config, physics="mjx")).sim
     budget = mujoco.mj_name2id(rough.physics_mj_model, numeric, MAX_CONTACTS)
-    assert budget >= 0 and rough.physics_mj_model.numeric_data[budget] == 8
+    assert budget >= 0 and rough.physics_mj_model.numeric_data[budget] == 6
+    assert WalkRoughConfig().max_contacts == 8
     flat = jaxenvs.make("HexapodJoystick-v0", physics="mjx").sim.physics_mj_model
     assert mujoco.mj_name2id(flat, numeric, MAX_CONTACTS) == -1
     free = HexapodJoystickRough(dataclasses.replace(env.config, max_contacts=0)).sim
