@@ -242,9 +242,9 @@ class JoystickRoughConfig(TerrainFields, JoystickConfig):
         rule: ``low_body_weight * max(0, low_body_height - h)^2`` taken from the reward
         at each step, ``h`` the body's height above the ground below it (as the fall
         rule reads it; 0 weight: none).
-      max_contacts: under MJX, the 6 deepest contacts of a step are kept (the terrain
-        tasks' 8 stepped this task under 0.8x the flat joystick's rate at 65,536 envs;
-        under the gait prior three feet stand most of the time).
+      max_contacts: under MJX, the 6 deepest contacts of a step are kept
+        (:class:`TerrainFields`' default, 8, is the walker's; docs/terrain.md says what
+        a budget drops and what it costs).
     """
 
     max_contacts: int = 6
