@@ -79,12 +79,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def entry() -> int:
     """The process's entry point (the ``jaxenvs`` script and ``python -m jaxenvs``):
-    :func:`main`'s exit code, with every object alive at that point frozen out of the
-    garbage collector (``gc.freeze``), so that the interpreter's exit does not walk them
-    again. Only for a process that ends after it: the collector skips them for the rest
-    of the process, so objects kept alive only by reference cycles are not finalized at
-    exit (atexit handlers still run; nothing of jaxenvs' needs more). Measured in
-    benchmarks/NOTES.md, "A process's first and last second"."""
+    :func:`main`'s exit code. Twice it moves every object alive at that point out of the
+    garbage collector's view (``gc.freeze``): once the package is imported, so that the
+    command's collections do not walk the modules, functions and tables that the imports
+    made and that live as long as the process, and once :func:`main` has returned, so that
+    the interpreter's exit does not walk them again. Only for a process that ends after
+    it: the collector skips frozen objects for the rest of the process, so objects kept
+    alive only by reference cycles among them are not finalized (atexit handlers still
+    run; nothing of jaxenvs' needs more). Measured in benchmarks/NOTES.md, "A process's
+    first and last second" and "The collector and the imports"."""
+    gc.freeze()
     code = main()
     gc.freeze()
     return code

@@ -249,16 +249,25 @@ def test_cli_error_exit_in_a_real_process(tmp_path):
 
 def test_entry_returns_main_code_and_freezes_the_collector(monkeypatch):
     """The process entry (script and ``python -m``) is :func:`cli.entry`: main's exit code,
-    with the objects alive at the end frozen out of the collector for the exit."""
+    with the objects alive once the package is imported frozen out of the collector before
+    the command runs, and those alive at the end frozen for the exit."""
     from importlib.metadata import entry_points
 
     (script,) = entry_points(group="console_scripts", name="jaxenvs")
     assert script.value == "jaxenvs.cli:entry"
-    monkeypatch.setattr(cli, "main", lambda: 3)
-    before = gc.get_freeze_count()
+    gc.unfreeze()
+    seen = []
+
+    def main() -> int:
+        seen.append(gc.get_freeze_count())
+        seen.append([seen])  # a tracked object alive at the end, made after the first freeze
+        return 3
+
+    monkeypatch.setattr(cli, "main", main)
     try:
         assert cli.entry() == 3
-        assert gc.get_freeze_count() > before
+        assert seen[0] > 0  # frozen before the command
+        assert gc.get_freeze_count() > seen[0]  # and again after it
     finally:
         gc.unfreeze()
 
