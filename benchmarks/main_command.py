@@ -2,19 +2,22 @@
 
 Each round runs, interleaved so that the shared machine's load falls on all of them alike:
 ``jaxenvs train CartPole-v0 --algo ppo`` (video included, as the README runs it) against a
-fresh compile cache (cold), the same again against that cache (warm), and Stable-Baselines3's
-PPO training Gymnasium's CartPole-v1 in a process of its own until a 20-episode
-deterministic evaluation (checked every ``--sb3-check-every`` steps, inside the timed
-process) returns 500. Every time is the whole process's, from start to exit. The C engine
-without video (cold, warm) closes each round. Rows: one per process; the record's ``extra``
-holds the medians over rounds and the ratios ours / SB3. ``--xla-defaults`` adds, after
-each of our commands, the same command with jaxenvs' XLA options emptied
-(``jaxenvs.core.xla.COMPILER_OPTIONS`` and ``ONCE_OPTIONS`` set to ``{}``: XLA's own
-defaults), cold and warm (rows ``<which>_xla_defaults``); ``--optimised-init`` the same
-with only ``ONCE_OPTIONS`` emptied (the run's init compiled with LLVM's optimisations, as
-before :func:`jaxenvs.core.xla.jit_once`; rows ``<which>_optimised_init``).
-``--sb3-defaults`` adds, after SB3's row, SB3's PPO with its own default hyperparameters
-(one env; row ``sb3_defaults``), timed the same way.
+fresh compile cache (cold), the same again against that cache (warm), and
+Stable-Baselines3's PPO training Gymnasium's CartPole-v1 in a process of its own until a
+20-episode deterministic evaluation (checked every ``--sb3-check-every`` steps, inside the
+timed process) returns 500. Every time is the whole process's, from start to exit. The C
+engine without video (cold, warm) closes each round. Every process runs as a user's shell
+starts it: without ``PYTHONDONTWRITEBYTECODE`` (which some containers set), so that Python
+keeps the modules it compiles; each cold run starts without the jaxenvs package's bytecode
+caches, as a fresh clone's first run does, and the warm run finds what the cold one wrote.
+Rows: one per process; the record's ``extra`` holds the medians over rounds and the ratios
+ours / SB3. ``--xla-defaults`` adds, after each of our commands, the same command with
+jaxenvs' XLA options emptied (``jaxenvs.core.xla.COMPILER_OPTIONS`` and ``ONCE_OPTIONS``
+set to ``{}``: XLA's own defaults), cold and warm (rows ``<which>_xla_defaults``);
+``--optimised-init`` the same with only ``ONCE_OPTIONS`` emptied (the run's init compiled
+with LLVM's optimisations, as before :func:`jaxenvs.core.xla.jit_once`; rows
+``<which>_optimised_init``). ``--sb3-defaults`` adds, after SB3's row, SB3's PPO with its
+own default hyperparameters (one env; row ``sb3_defaults``), timed the same way.
 
 SB3's hyperparameters are RL Baselines3 Zoo's tuned ones for CartPole-v1 (8 envs,
 n_steps 32, batch 256, 20 epochs, gamma 0.98, GAE lambda 0.8, linearly decayed learning
@@ -28,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import statistics
 import subprocess
 import sys
@@ -68,8 +72,26 @@ def _program(variant: str) -> list[str]:
     ]
 
 
+def _user_env(**extra: str) -> dict[str, str]:
+    """This process's environment as a user's shell has it (no ``PYTHONDONTWRITEBYTECODE``),
+    plus ``extra``."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    return {**env, **extra}
+
+
+def _drop_bytecode() -> int:
+    """Remove the jaxenvs package's ``__pycache__`` directories (a fresh clone has none);
+    returns how many there were."""
+    import jaxenvs
+
+    dirs = list(Path(jaxenvs.__file__).resolve().parent.rglob("__pycache__"))
+    for d in dirs:
+        shutil.rmtree(d, ignore_errors=True)
+    return len(dirs)
+
+
 def _run(args: list[str], out: Path, cache: str, variant: str = "") -> dict[str, Any]:
-    env = {**os.environ, "JAXENVS_CACHE_DIR": cache}
+    env = _user_env(JAXENVS_CACHE_DIR=cache)
     start = time.perf_counter()
     program = _program(variant)
     subprocess.run(
@@ -130,6 +152,7 @@ def _run_sb3(seed: int, max_steps: int, check_every: int, defaults: bool) -> dic
         capture_output=True,
         text=True,
         timeout=1800,
+        env=_user_env(),
     )
     wall = time.perf_counter() - start
     result = json.loads(done.stdout.strip().splitlines()[-1])
@@ -189,6 +212,8 @@ def main() -> None:
                 with tempfile.TemporaryDirectory() as tmp:
                     cache = str(Path(tmp) / "cache")
                     for i in range(2):
+                        if i == 0:
+                            _drop_bytecode()
                         row = _run(command, Path(tmp) / f"run{i}", cache, variant)
                         head = {"command": "jaxenvs " + " ".join(command), "which": which}
                         rows.append({**head, "run": i, **row, "round": k})
@@ -212,7 +237,9 @@ def main() -> None:
             "Baselines3 Zoo's CartPole-v1 PPO hyperparameters"
             + (" (sb3_defaults: SB3's own defaults, one env)" if args.sb3_defaults else "")
             + ", seed = round, greedy "
-            f"20-episode eval every {args.sb3_check_every} steps inside the timed process."
+            f"20-episode eval every {args.sb3_check_every} steps inside the timed process. "
+            "Every process without PYTHONDONTWRITEBYTECODE; each cold run without the "
+            "package's bytecode caches."
         )
         rec = results_io.record(args.json, title, rows, notes=notes, extra=extra)
         results_io.write(args.json, rec)
