@@ -158,7 +158,7 @@ class Program:
     def __call__(self, *args: Any) -> Any:
         """Run the program. Weakly typed inputs are made strong first, as the module's
         are: a weak input would make ``jit`` trace and compile the wrapper again."""
-        return self.jitted(*jax.tree.map(_strong, args))
+        return self.jitted(*jax.tree.map(strong, args))
 
     def eval_shape(self, *args: Any) -> Any:
         """The output's shapes for ``args`` (arrays or ``jax.ShapeDtypeStruct``s), which
@@ -171,10 +171,10 @@ class Program:
 
     def lower(self, *args: Any) -> Any:
         """The wrapper lowered for ``args``."""
-        return self.jitted.lower(*jax.tree.map(_strong, args))
+        return self.jitted.lower(*jax.tree.map(strong, args))
 
 
-def _strong(x: Any) -> Any:
+def strong(x: Any) -> Any:
     """``x`` without its weak type (an array converted, a ``ShapeDtypeStruct`` rebuilt)."""
     if not getattr(x, "weak_type", False):
         return x

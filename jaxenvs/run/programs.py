@@ -68,9 +68,9 @@ class Programs:
 
     def start_chunk(self, state: PyTree) -> None:
         """Start compiling the chunk for states like ``state`` on the background threads
-        when it runs in stages (:meth:`StagedChunk.start`); otherwise its first call
-        compiles it."""
-        if isinstance(self.chunk_fn, StagedChunk):
+        (:meth:`StagedChunk.start`, :meth:`BackgroundChunk.start`); a chunk of another
+        kind (over a mesh) is compiled by its first call."""
+        if isinstance(self.chunk_fn, StagedChunk | BackgroundChunk):
             self.chunk_fn.start(state)
 
     def start_evaluator(self) -> None:
@@ -159,6 +159,55 @@ class StagedChunk:
         return state, finish(state, tuple(metrics))
 
 
+class BackgroundChunk:
+    """A chunk that is one program (jitted, or loaded from the program store), compiled
+    on a background compile thread from :meth:`start` on. Called like the jitted chunk
+    (``chunk(state) -> (state, metrics)``, and ``eval_shape``).
+
+    The run loop starts it before ``init`` compiles and runs, as a :class:`StagedChunk`'s,
+    so that the chunk's compile, or its load from JAX's compile cache, overlaps init's
+    and the run's first checkpoint instead of following them; the first call waits for
+    it. It is compiled and called without weak types
+    (:func:`jaxenvs.run.program_store.strong`), so that a state whose leaves' weak types
+    differ from the first one's runs the same program.
+    """
+
+    def __init__(self, chunk: Callable[..., Any]) -> None:
+        self._chunk = chunk
+        self._lock = threading.Lock()
+        self._pending: concurrent.futures.Future | None = None
+
+    def eval_shape(self, state: PyTree) -> Any:
+        """The shapes of ``self(state)``, from the chunk's trace."""
+        return self._chunk.eval_shape(state)  # type: ignore[attr-defined]
+
+    def start(self, state: PyTree) -> None:
+        """Start compiling the chunk for states like ``state`` (arrays or their
+        ``eval_shape``) on a background compile thread, once."""
+        shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state)
+        with self._lock:
+            if self._pending is None:
+                self._pending = _COMPILER.submit(self._compile, shapes)
+
+    def _compile(self, shapes: PyTree) -> Any:
+        return self._chunk.lower(shapes).compile()  # type: ignore[attr-defined]
+
+    def compiled(self, state: PyTree) -> Any:
+        """The compiled chunk (starting its compile if nothing has, and waiting for it).
+        A compile's error is raised, and the next call starts the compile again."""
+        self.start(state)
+        assert self._pending is not None
+        try:
+            return self._pending.result()
+        except BaseException:  # a failed compile: raised here, tried again on the next call
+            with self._lock:
+                self._pending = None
+            raise
+
+    def __call__(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
+        return self.compiled(state)(jax.tree.map(program_store.strong, state))
+
+
 def _over_stacked(finish: Callable[[PyTree, Any], Any]) -> Callable[[PyTree, Any], Any]:
     """``finish`` of a tuple of updates' metrics, stacked along a new leading axis."""
 
@@ -232,6 +281,8 @@ def build_programs(
         init_fn = stored or init_fn
         stored = store(over_seeds(trainer.chunk, seeds), (template,), "chunk", jit, (template,))
         chunk_fn = stored or chunk_fn
+    if not staged:
+        chunk_fn = BackgroundChunk(chunk_fn)
 
     def compiled_evaluator() -> Any:
         args = (params_shape, key_shape)

@@ -70,7 +70,8 @@ class _Recording(concurrent.futures.ThreadPoolExecutor):
         self.events = events
 
     def submit(self, fn, /, *args, **kwargs):
-        self.events.append("submitted")
+        chunk = isinstance(getattr(fn, "__self__", None), programs.BackgroundChunk)
+        self.events.append("chunk compile" if chunk else "submitted")
         return super().submit(fn, *args, **kwargs)
 
 
@@ -115,8 +116,10 @@ def test_evaluator_compiles_once_after_the_first_chunk(chain, events, tmp_path, 
     counted = dataclasses.replace(progs, chunk_fn=_CountedChunk(progs.chunk_fn, events))
     monkeypatch.setattr(loop, "build_programs", lambda *a, **k: counted)
     summary = runner.train(chain, tmp_path / "run", quiet=True)
-    assert events[:2] == ["chunk", "submitted"]
+    # the wrapper hides the chunk from the loop's start: its first call compiles it
+    assert events[:3] == ["chunk", "chunk compile", "submitted"]
     assert events.count("submitted") == 1  # every chunk asks; one compile
+    assert events.count("chunk compile") == 1
     assert events.count("chunk") == 3
     assert len(summary["eval_mean_return_per_seed"]) == 1
 
@@ -168,6 +171,50 @@ def test_a_staged_chunk_compiles_before_its_call_and_is_the_chunk(events):
         if jax.dtypes.issubdtype(g.dtype, jax.dtypes.prng_key):
             g, w = jax.random.key_data(g), jax.random.key_data(w)
         np.testing.assert_array_equal(g, w)
+
+
+def test_a_one_program_chunk_compiles_before_its_call_and_is_the_chunk(events):
+    """Started by the run loop before ``init`` runs, its compile is submitted once; its
+    results are the jitted chunk's, bit for bit, for states whose weak types differ."""
+    resolved = runner.resolve_config("CartPole-v0", "ppo", None, PPO_AGENT, {"video": False})
+    progs = programs.build_programs(resolved, None, False)
+    assert isinstance(progs.chunk_fn, programs.BackgroundChunk)
+    keys = runner.seed_keys(0, 1)
+    progs.start_chunk(progs.init_fn.eval_shape(keys))
+    assert events == ["chunk compile"]
+    one = jax.jit(programs.over_seeds(progs.trainer.chunk, 1))
+    got = want = progs.init_fn(keys)
+    for _ in range(2):
+        got, got_metrics = progs.chunk_fn(got)
+        want, want_metrics = one(want)
+    assert events == ["chunk compile"]  # compiled once
+    got, want = jax.tree.leaves((got, got_metrics)), jax.tree.leaves((want, want_metrics))
+    for g, w in zip(got, want, strict=True):
+        if jax.dtypes.issubdtype(g.dtype, jax.dtypes.prng_key):
+            g, w = jax.random.key_data(g), jax.random.key_data(w)
+        np.testing.assert_array_equal(g, w)
+
+
+def test_a_one_program_chunk_whose_compile_failed_compiles_again_on_the_next_call():
+    calls = []
+
+    def chunk(state):
+        calls.append("trace")
+        if len(calls) == 1:
+            raise RuntimeError("the chunk did not compile")
+        return state + 1.0, {"sum": state.sum()}
+
+    background = programs.BackgroundChunk(jax.jit(chunk))
+    state = jnp.ones((1, 3), jnp.float32)
+    with pytest.raises(RuntimeError, match="did not compile"):
+        background(state)
+    state, metrics = background(state)
+    np.testing.assert_array_equal(state, [[2.0, 2.0, 2.0]])
+    np.testing.assert_array_equal(metrics["sum"], 3.0)
+    weak = jnp.broadcast_to(jnp.asarray(2.0), (1, 3))  # weakly typed: the same program
+    assert weak.weak_type
+    np.testing.assert_array_equal(background(weak)[0], [[3.0, 3.0, 3.0]])
+    assert calls == ["trace", "trace"]
 
 
 @pytest.mark.parametrize(("backend", "staged"), [("cpu", False), ("gpu", True), ("tpu", True)])
