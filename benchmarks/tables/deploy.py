@@ -97,6 +97,8 @@ TABLES = {
     "deploy-joystick-rough-gait": Table(("deploy_cpu2_joystick_rough_gait",), deploy_joystick),
     "deploy-joystick-rough-sag": Table(("deploy_cpu2_joystick_rough_sag",), deploy_joystick),
     "deploy-joystick-rough-c6": Table(("deploy_cpu2_joystick_rough_c6",), deploy_joystick),
+    "deploy-joystick-rough-c6-s1": Table(("deploy_cpu2_joystick_rough_c6_s1",), deploy_joystick),
+    "deploy-joystick-rough-c6-s2": Table(("deploy_cpu2_joystick_rough_c6_s2",), deploy_joystick),
     "deploy-joystick-rough-link": Table(("deploy_cpu2_joystick_rough_link",), deploy_joystick),
     "deploy-joystick-rough-types": Table(("deploy_cpu2_joystick_rough_types",), deploy_rough_types),
     "deploy-loop": Table(
