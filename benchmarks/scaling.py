@@ -9,8 +9,10 @@ in one of three modes:
 * ``strong``: the config's ``num_envs`` split over the devices;
 * ``seeds``: N seeds, each trained on a device of its own (no cross-device traffic).
 
-A row runs ``init``, a first chunk (compile and run: ``first_chunk_s``; from the build's
-start to its end: ``to_first_chunk_s``), then, once the evaluator that the run loop starts
+A row runs ``init``, a first chunk (compile and run: ``first_chunk_s``, less what of the
+compile overlapped init, which a chunk in stages and, from 2026-12-03 on, a one-program
+chunk on one device start before it; from the build's start to its end:
+``to_first_chunk_s``), then, once the evaluator that the run loop starts
 compiling after the first chunk has compiled, ``--chunks`` timed chunks;
 ``env_steps_per_s`` is the env steps of the timed chunks (every seed's) over their wall
 time, compile excluded; ``train_seconds`` is the whole row's wall time, init, the first

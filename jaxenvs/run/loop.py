@@ -320,7 +320,8 @@ def train(
     resume and raises ``KeyboardInterrupt``. A second Ctrl-C stops at once, discarding
     the chunk in flight: the checkpoint on disk stays the last committed chunk's. A
     Ctrl-C before the first checkpoint (while compiling) saves nothing; the notice says
-    there is nothing to resume.
+    there is nothing to resume, and the process ends once the chunk's compile, started on
+    a background thread beside init's, has ended.
     """
     clock = _Clock(time.perf_counter(), time.process_time())
     say = log or ((lambda m: None) if quiet else (lambda m: print(m, file=sys.stderr)))

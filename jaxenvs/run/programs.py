@@ -68,10 +68,11 @@ class Programs:
 
     def start_chunk(self, state: PyTree) -> None:
         """Start compiling the chunk for states like ``state`` on the background threads
-        (:meth:`StagedChunk.start`, :meth:`BackgroundChunk.start`); a chunk of another
-        kind (over a mesh) is compiled by its first call."""
-        if isinstance(self.chunk_fn, StagedChunk | BackgroundChunk):
-            self.chunk_fn.start(state)
+        where it has a ``start`` (:meth:`StagedChunk.start`, :meth:`BackgroundChunk.start`);
+        a chunk without one (over a mesh) is compiled by its first call."""
+        start = getattr(self.chunk_fn, "start", None)
+        if start is not None:
+            start(state)
 
     def start_evaluator(self) -> None:
         """Start the evaluator's compile on a background thread (once; the run loop
@@ -124,9 +125,10 @@ class StagedChunk:
         learning's and ``finish``'s on the other. The run loop starts it before ``init``
         runs; the first call starts it if nothing has."""
         with self._lock:
-            if self._pending is None:
-                rollout = _COMPILER.submit(lambda: self._collect.trace(state).lower().compile())
-                self._pending = (rollout, _COMPILER.submit(self._compile_rest, state))
+            if self._pending is not None and not any(map(_failed, self._pending)):
+                return
+            rollout = _COMPILER.submit(lambda: self._collect.trace(state).lower().compile())
+            self._pending = (rollout, _COMPILER.submit(self._compile_rest, state))
 
     def _compile_rest(self, state: PyTree) -> tuple[Any, Any]:
         state, batch = self._collect.eval_shape(state)
@@ -138,16 +140,11 @@ class StagedChunk:
     def compiled(self, state: PyTree) -> tuple[Any, Any, Any]:
         """The compiled rollout, learning and finish (starting their compile if nothing
         has, and waiting for it). A compile's error is raised, and the next call starts
-        the compiles again."""
+        the compiles again; an interrupted wait leaves the compiles running."""
         self.start(state)
         assert self._pending is not None
         rollout, rest = self._pending
-        try:
-            return (rollout.result(), *rest.result())
-        except BaseException:  # a failed compile: raised here, tried again on the next call
-            with self._lock:
-                self._pending = None
-            raise
+        return (rollout.result(), *rest.result())
 
     def __call__(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
         collect, learn, finish = self.compiled(state)
@@ -169,43 +166,50 @@ class BackgroundChunk:
     and the run's first checkpoint instead of following them; the first call waits for
     it. It is compiled and called without weak types
     (:func:`jaxenvs.run.program_store.strong`), so that a state whose leaves' weak types
-    differ from the first one's runs the same program.
+    differ from the first one's runs the same program. The compile thread sees JAX's
+    global settings only: the program is compiled for the default device, and a state
+    must live there (one device's run).
     """
 
     def __init__(self, chunk: Callable[..., Any]) -> None:
-        self._chunk = chunk
+        #: the chunk it compiles: a jitted function or a stored program
+        self.chunk = chunk
         self._lock = threading.Lock()
         self._pending: concurrent.futures.Future | None = None
 
     def eval_shape(self, state: PyTree) -> Any:
         """The shapes of ``self(state)``, from the chunk's trace."""
-        return self._chunk.eval_shape(state)  # type: ignore[attr-defined]
+        return self.chunk.eval_shape(state)  # type: ignore[attr-defined]
 
     def start(self, state: PyTree) -> None:
         """Start compiling the chunk for states like ``state`` (arrays or their
-        ``eval_shape``) on a background compile thread, once."""
-        shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state)
+        ``eval_shape``) on a background compile thread, once; again after a compile
+        that failed."""
         with self._lock:
-            if self._pending is None:
-                self._pending = _COMPILER.submit(self._compile, shapes)
+            if self._pending is not None and not _failed(self._pending):
+                return
+            shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state)
+            self._pending = _COMPILER.submit(self._compile, shapes)
 
     def _compile(self, shapes: PyTree) -> Any:
-        return self._chunk.lower(shapes).compile()  # type: ignore[attr-defined]
+        return self.chunk.lower(shapes).compile()  # type: ignore[attr-defined]
 
     def compiled(self, state: PyTree) -> Any:
         """The compiled chunk (starting its compile if nothing has, and waiting for it).
-        A compile's error is raised, and the next call starts the compile again."""
-        self.start(state)
+        A compile's error is raised, and the next call starts the compile again; an
+        interrupted wait leaves the compile running."""
+        if self._pending is None or _failed(self._pending):
+            self.start(state)
         assert self._pending is not None
-        try:
-            return self._pending.result()
-        except BaseException:  # a failed compile: raised here, tried again on the next call
-            with self._lock:
-                self._pending = None
-            raise
+        return self._pending.result()
 
     def __call__(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
         return self.compiled(state)(jax.tree.map(program_store.strong, state))
+
+
+def _failed(future: concurrent.futures.Future) -> bool:
+    """Whether ``future`` ended without a result (an error, or cancelled)."""
+    return future.done() and (future.cancelled() or future.exception() is not None)
 
 
 def _over_stacked(finish: Callable[[PyTree, Any], Any]) -> Callable[[PyTree, Any], Any]:

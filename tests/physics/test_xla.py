@@ -97,7 +97,7 @@ def test_a_runs_init_is_compiled_as_a_program_run_once(monkeypatch):
     finally:
         programs.build_programs.cache_clear()
     assert len(made) == 1 and built.init_fn is made[0]
-    assert built.chunk_fn is not made[0]
+    assert built.chunk_fn.chunk is not made[0]
     assert jax.tree.leaves(built.init_fn(run_config.seed_keys(0, 1)))
 
 
