@@ -156,4 +156,5 @@ TABLES = {
     "main-command-ratios-preload-cpu2": Table(("main_command_cpu2_preload",), fair_peer_ratios),
     "main-command-ratios-gc-cpu2": Table(("main_command_cpu2_gc",), fair_peer_ratios),
     "main-command-ratios-chunk-cpu2": Table(("main_command_cpu2_chunk",), fair_peer_ratios),
+    "main-command-ratios-head-cpu2": Table(("main_command_cpu2_head",), fair_peer_ratios),
 }
