@@ -110,8 +110,7 @@ class StagedChunk:
         self._collect = jit(over_seeds(stages.collect, num_seeds))
         self._learn = jit(over_seeds(stages.learn, num_seeds))
         self._finish = jit(over_seeds(_over_stacked(stages.finish), num_seeds))
-        self._lock = threading.Lock()
-        self._pending: tuple[concurrent.futures.Future, concurrent.futures.Future] | None = None
+        self._compiles = _Compiles()
 
     def eval_shape(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
         """The shapes of ``self(state)``, from each program's trace."""
@@ -124,11 +123,14 @@ class StagedChunk:
         ``eval_shape``), once: the rollout's on one background compile thread, the
         learning's and ``finish``'s on the other. The run loop starts it before ``init``
         runs; the first call starts it if nothing has."""
-        with self._lock:
-            if self._pending is not None and not any(map(_failed, self._pending)):
-                return
+        self._started(state)
+
+    def _started(self, state: PyTree) -> tuple[concurrent.futures.Future, ...]:
+        def submit() -> tuple[concurrent.futures.Future, ...]:
             rollout = _COMPILER.submit(lambda: self._collect.trace(state).lower().compile())
-            self._pending = (rollout, _COMPILER.submit(self._compile_rest, state))
+            return rollout, _COMPILER.submit(self._compile_rest, state)
+
+        return self._compiles.start(submit)
 
     def _compile_rest(self, state: PyTree) -> tuple[Any, Any]:
         state, batch = self._collect.eval_shape(state)
@@ -141,9 +143,7 @@ class StagedChunk:
         """The compiled rollout, learning and finish (starting their compile if nothing
         has, and waiting for it). A compile's error is raised, and the next call starts
         the compiles again; an interrupted wait leaves the compiles running."""
-        self.start(state)
-        assert self._pending is not None
-        rollout, rest = self._pending
+        rollout, rest = self._started(state)
         return (rollout.result(), *rest.result())
 
     def __call__(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
@@ -174,8 +174,7 @@ class BackgroundChunk:
     def __init__(self, chunk: Callable[..., Any]) -> None:
         #: the chunk it compiles: a jitted function or a stored program
         self.chunk = chunk
-        self._lock = threading.Lock()
-        self._pending: concurrent.futures.Future | None = None
+        self._compiles = _Compiles()
 
     def eval_shape(self, state: PyTree) -> Any:
         """The shapes of ``self(state)``, from the chunk's trace."""
@@ -185,11 +184,14 @@ class BackgroundChunk:
         """Start compiling the chunk for states like ``state`` (arrays or their
         ``eval_shape``) on a background compile thread, once; again after a compile
         that failed."""
-        with self._lock:
-            if self._pending is not None and not _failed(self._pending):
-                return
+        self._started(state)
+
+    def _started(self, state: PyTree) -> tuple[concurrent.futures.Future, ...]:
+        def submit() -> tuple[concurrent.futures.Future, ...]:
             shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state)
-            self._pending = _COMPILER.submit(self._compile, shapes)
+            return (_COMPILER.submit(self._compile, shapes),)
+
+        return self._compiles.start(submit)
 
     def _compile(self, shapes: PyTree) -> Any:
         return self.chunk.lower(shapes).compile()  # type: ignore[attr-defined]
@@ -198,13 +200,31 @@ class BackgroundChunk:
         """The compiled chunk (starting its compile if nothing has, and waiting for it).
         A compile's error is raised, and the next call starts the compile again; an
         interrupted wait leaves the compile running."""
-        if self._pending is None or _failed(self._pending):
-            self.start(state)
-        assert self._pending is not None
-        return self._pending.result()
+        (future,) = self._started(state)
+        return future.result()
 
     def __call__(self, state: PyTree) -> tuple[PyTree, dict[str, Any]]:
         return self.compiled(state)(jax.tree.map(program_store.strong, state))
+
+
+class _Compiles:
+    """A chunk's compiles on the background compile threads: submitted together once,
+    and again once one of them has failed (an error, or cancelled); a wait for them that
+    is interrupted leaves them running."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._futures: tuple[concurrent.futures.Future, ...] = ()
+
+    def start(
+        self, submit: Callable[[], tuple[concurrent.futures.Future, ...]]
+    ) -> tuple[concurrent.futures.Future, ...]:
+        """The compiles' futures: ``submit()``'s (which submits them) on the first call
+        and after a failure, else those submitted before."""
+        with self._lock:
+            if not self._futures or any(map(_failed, self._futures)):
+                self._futures = submit()
+            return self._futures
 
 
 def _failed(future: concurrent.futures.Future) -> bool:
