@@ -79,15 +79,12 @@ def _user_env(**extra: str) -> dict[str, str]:
     return {**env, **extra}
 
 
-def _drop_bytecode() -> int:
-    """Remove the jaxenvs package's ``__pycache__`` directories (a fresh clone has none);
-    returns how many there were."""
+def _drop_bytecode() -> None:
+    """Remove the jaxenvs package's ``__pycache__`` directories (a fresh clone has none)."""
     import jaxenvs
 
-    dirs = list(Path(jaxenvs.__file__).resolve().parent.rglob("__pycache__"))
-    for d in dirs:
+    for d in list(Path(jaxenvs.__file__).resolve().parent.rglob("__pycache__")):
         shutil.rmtree(d, ignore_errors=True)
-    return len(dirs)
 
 
 def _run(args: list[str], out: Path, cache: str, variant: str = "") -> dict[str, Any]:
